@@ -1,0 +1,245 @@
+"""The Minitaur robot: its URDF, joints, leg model, motors and sensors.
+
+Joints and links are looked up by name in the URDF, never by hard-coded index.
+Motor order, directions and the leg model follow the classic
+``pybullet_envs.bullet.minitaur`` so observations and actions mean the same thing.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+
+from minitaur_env.motor import OBSERVED_TORQUE_LIMIT, SPEED_LIMIT, MotorModel
+from minitaur_env.sim import DATA_PATH, BulletSim
+
+MotorControl = Literal["accurate", "pd", "position"]
+MOTOR_CONTROLS: tuple[str, ...] = ("accurate", "pd", "position")
+
+NUM_MOTORS = 8
+NUM_LEGS = 4
+LEG_NAMES = ("front_left", "back_left", "front_right", "back_right")
+# Motor i belongs to leg i // 2; each leg has an "L" and an "R" motor.
+MOTOR_JOINT_NAMES = tuple(f"motor_{leg}{side}_joint" for leg in LEG_NAMES for side in "LR")
+KNEE_JOINT_NAMES = tuple(f"knee_{leg}{side}_link" for leg in LEG_NAMES for side in "LR")
+# The left legs' motors turn the other way round: observations and commands are
+# expressed with the same sign on both sides.
+MOTOR_DIRECTIONS = np.array([-1.0, -1.0, -1.0, -1.0, 1.0, 1.0, 1.0, 1.0])
+
+INIT_POSITION = (0.0, 0.0, 0.2)
+INIT_ORIENTATION = (0.0, 0.0, 0.0, 1.0)
+INIT_MOTOR_ANGLE = math.pi / 2
+INIT_KNEE_ANGLE = -2.1834
+KNEE_PIVOT_RIGHT = (0.0, 0.005, 0.2)
+KNEE_PIVOT_LEFT = (0.0, 0.01, 0.2)
+
+OVERHEAT_SHUTDOWN_TORQUE = 2.45  # N m
+OVERHEAT_SHUTDOWN_TIME = 1.0  # s
+POSITION_SERVO_MAX_FORCE = 3.5  # N m, PyBullet's own servo in "position" control
+
+# Gains per motor-control mode when the user does not give them (the classic values).
+DEFAULT_GAINS: dict[str, tuple[float, float]] = {
+    "accurate": (1.0, 0.02),
+    "pd": (8.0, 0.3),
+    "position": (1.0, 1.0),
+}
+
+# Observation layout: [angles | velocities | torques | base quaternion].
+OBSERVATION_SIZE = 3 * NUM_MOTORS + 4
+CLASSIC_OBSERVATION_BOUND = np.concatenate(
+    [
+        np.full(NUM_MOTORS, math.pi),
+        np.full(NUM_MOTORS, SPEED_LIMIT),
+        np.full(NUM_MOTORS, OBSERVED_TORQUE_LIMIT),
+        np.ones(4),
+    ]
+)
+
+
+def leg_model_to_motor_angles(action: np.ndarray) -> np.ndarray:
+    """Motor angle targets from leg-model actions (``ConvertFromLegModel``).
+
+    ``action[0:4]`` extends leg ``i`` (its two motors move apart), ``action[4:8]``
+    swings it (both motors move together). Zero maps to 5*pi/8 for every motor.
+    """
+    leg = np.arange(NUM_MOTORS) // 2
+    swing = -(math.pi / 4) * (action[4 + leg] + 1.5)
+    extension_sign = np.where(np.arange(NUM_MOTORS) % 2 == 0, 1.0, -1.0)
+    extension_sign[NUM_LEGS:] *= -1.0
+    extension = extension_sign * (math.pi / 4) * action[leg]
+    return math.pi + swing + extension
+
+
+class Minitaur:
+    """One Minitaur in a `BulletSim`: loading, posing, actuation and sensing.
+
+    Args:
+        sim: the simulator the robot lives in.
+        time_step: the physics step (s); the overheat timer counts in it.
+        motor_control: "accurate" (DC motor model, the classic default), "pd"
+            (ideal PD torques) or "position" (PyBullet's position servos).
+        motor_kp, motor_kd: gains of the chosen control mode.
+        overheat_protection: switch a motor off for the episode after it has
+            exceeded 2.45 N m for more than 1 s ("accurate" control only).
+        motor_velocity_limit: clip targets to this speed (rad/s) per step.
+        self_collision: let the legs collide with each other and the body.
+        on_rack: hold the base fixed in the air (for looking at a gait).
+        urdf_root: folder holding ``quadruped/minitaur.urdf``.
+    """
+
+    def __init__(
+        self,
+        sim: BulletSim,
+        time_step: float,
+        motor_control: MotorControl = "accurate",
+        motor_kp: float = 1.0,
+        motor_kd: float = 0.02,
+        overheat_protection: bool = True,
+        motor_velocity_limit: float = math.inf,
+        self_collision: bool = True,
+        on_rack: bool = False,
+        urdf_root: str = DATA_PATH,
+    ) -> None:
+        self._sim = sim
+        self.time_step = time_step
+        self.motor_control = motor_control
+        self.kp = motor_kp
+        self.kd = motor_kd
+        self.overheat_protection = overheat_protection and motor_control == "accurate"
+        self.motor_velocity_limit = motor_velocity_limit
+        self.motor_model = MotorModel(kp=motor_kp, kd=motor_kd)
+
+        self.body = sim.load_urdf(
+            "quadruped/minitaur.urdf",
+            INIT_POSITION,
+            INIT_ORIENTATION,
+            self_collision=self_collision,
+            urdf_root=urdf_root,
+        )
+        joints = sim.joint_names(self.body)
+        joint_index = {name: i for i, (name, _) in enumerate(joints)}
+        self.motor_joints = [joint_index[name] for name in MOTOR_JOINT_NAMES]
+        self.knee_joints = [joint_index[name] for name in KNEE_JOINT_NAMES]
+        # Links by role, from the child link names of the URDF.
+        self.leg_links = [
+            i for i, (_, link) in enumerate(joints) if link.startswith(("upper_leg", "lower_leg"))
+        ]
+        self.motor_links = list(self.motor_joints)
+        self.foot_links = [i for i, (_, link) in enumerate(joints) if link.startswith("lower_leg")]
+        self.base_mass_urdf = sim.mass(self.body, -1)
+        self.leg_mass_urdf = sim.mass(self.body, self.leg_links[0])
+        self.motor_mass_urdf = sim.mass(self.body, self.motor_links[0])
+
+        self._set_initial_pose()
+        for right, left in zip(self.knee_joints[1::2], self.knee_joints[0::2], strict=True):
+            sim.add_point_constraint(self.body, right, left, KNEE_PIVOT_RIGHT, KNEE_PIVOT_LEFT)
+        if motor_control == "position":
+            sim.free_joints(self.body, self.knee_joints)
+            self._hold_initial_pose_with_servos()
+        else:
+            sim.free_joints(self.body, self.motor_joints + self.knee_joints)
+        if on_rack:
+            sim.fix_base_in_air(self.body, height=1.0)
+        self.reset_motor_state()
+
+    # -- resetting -----------------------------------------------------------
+    def _set_initial_pose(self) -> None:
+        for motor, knee, direction in zip(
+            self.motor_joints, self.knee_joints, MOTOR_DIRECTIONS, strict=True
+        ):
+            self._sim.reset_joint(self.body, motor, direction * INIT_MOTOR_ANGLE)
+            self._sim.reset_joint(self.body, knee, direction * INIT_KNEE_ANGLE)
+
+    def _hold_initial_pose_with_servos(self) -> None:
+        targets = MOTOR_DIRECTIONS * INIT_MOTOR_ANGLE
+        self._sim.set_position_targets(
+            self.body, self.motor_joints, targets, self.kp, self.kd, POSITION_SERVO_MAX_FORCE
+        )
+
+    def reset_motor_state(self) -> None:
+        """Forget torques, overheat timers and shut-down motors (start of an episode)."""
+        self.observed_torques = np.zeros(NUM_MOTORS)
+        self.overheat_steps = np.zeros(NUM_MOTORS, dtype=np.int64)
+        self.motors_enabled = np.ones(NUM_MOTORS, dtype=bool)
+
+    # -- actuation -------------------------------------------------------------
+    def apply_motor_targets(self, targets: np.ndarray) -> None:
+        """Command motor angles (observation convention) for the next physics step."""
+        if self.motor_control == "position":
+            self._apply_position_servo(targets)
+            return
+        angles, velocities = self.motor_angles_velocities()
+        if self.motor_velocity_limit < math.inf:
+            reach = self.time_step * self.motor_velocity_limit
+            targets = np.clip(targets, angles - reach, angles + reach)
+        if self.motor_control == "accurate":
+            torques, self.observed_torques = self.motor_model.torques(targets, angles, velocities)
+            if self.overheat_protection:
+                self._update_overheat(torques)
+                torques = np.where(self.motors_enabled, torques, 0.0)
+        else:
+            torques = -self.kp * (angles - targets) - self.kd * velocities
+            self.observed_torques = torques
+        self._sim.set_torques(self.body, self.motor_joints, torques * MOTOR_DIRECTIONS)
+
+    def _apply_position_servo(self, targets: np.ndarray) -> None:
+        if self.motor_velocity_limit < math.inf:
+            angles, _ = self.motor_angles_velocities()
+            reach = self.time_step * self.motor_velocity_limit
+            targets = np.clip(targets, angles - reach, angles + reach)
+        self._sim.set_position_targets(
+            self.body,
+            self.motor_joints,
+            targets * MOTOR_DIRECTIONS,
+            self.kp,
+            self.kd,
+            POSITION_SERVO_MAX_FORCE,
+        )
+
+    def _update_overheat(self, torques: np.ndarray) -> None:
+        hot = np.abs(torques) > OVERHEAT_SHUTDOWN_TORQUE
+        self.overheat_steps = np.where(hot, self.overheat_steps + 1, 0)
+        self.motors_enabled &= self.overheat_steps <= OVERHEAT_SHUTDOWN_TIME / self.time_step
+
+    # -- sensing -------------------------------------------------------------
+    def motor_angles_velocities(self) -> tuple[np.ndarray, np.ndarray]:
+        angles, velocities = self._sim.joint_positions_velocities(self.body, self.motor_joints)
+        return angles * MOTOR_DIRECTIONS, velocities * MOTOR_DIRECTIONS
+
+    def motor_torques(self) -> np.ndarray:
+        """Torques as the motor model observes them (the joint's in "position" control)."""
+        if self.motor_control == "position":
+            return self._sim.joint_torques(self.body, self.motor_joints) * MOTOR_DIRECTIONS
+        return self.observed_torques
+
+    def base_pose(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        return self._sim.base_pose(self.body)
+
+    def observation(self) -> np.ndarray:
+        """[motor angles, motor velocities, motor torques, base quaternion] (28, float64)."""
+        angles, velocities = self.motor_angles_velocities()
+        _, orientation = self.base_pose()
+        return np.concatenate([angles, velocities, self.motor_torques(), orientation])
+
+    # -- dynamics parameters -----------------------------------------------------
+    def set_base_mass(self, mass: float) -> None:
+        self._sim.set_mass(self.body, -1, mass)
+
+    def set_leg_masses(self, leg_mass: float, motor_mass: float) -> None:
+        """Every upper and lower leg link gets ``leg_mass``; every motor ``motor_mass``."""
+        for link in self.leg_links:
+            self._sim.set_mass(self.body, link, leg_mass)
+        for link in self.motor_links:
+            self._sim.set_mass(self.body, link, motor_mass)
+
+    def set_foot_friction(self, friction: float) -> None:
+        for link in self.foot_links:
+            self._sim.set_lateral_friction(self.body, link, friction)
+
+    def set_battery_voltage(self, voltage: float) -> None:
+        self.motor_model.voltage = voltage
+
+    def set_motor_viscous_damping(self, damping: float) -> None:
+        self.motor_model.viscous_damping = damping

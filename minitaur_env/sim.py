@@ -1,0 +1,270 @@
+"""The only module that talks to PyBullet: one physics client per `BulletSim`.
+
+Everything else in the package works through this thin layer, so the rest of
+the code never sees client ids, and every call is a single bulk call where
+PyBullet offers one (stepping is the hot path of the env).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Sequence
+
+import numpy as np
+import pybullet
+import pybullet_data
+
+DATA_PATH: str = pybullet_data.getDataPath()
+
+
+class BulletSim:
+    """A PyBullet physics client and the operations the Minitaur env needs.
+
+    Args:
+        gui: open the PyBullet GUI (``pybullet.GUI``) instead of a headless
+            ``DIRECT`` client.
+    """
+
+    def __init__(self, gui: bool = False) -> None:
+        mode = pybullet.GUI if gui else pybullet.DIRECT
+        self._id: int = pybullet.connect(mode)
+        if self._id < 0:
+            raise RuntimeError(
+                "could not connect to PyBullet"
+                + (" (the GUI needs a display; use render_mode='rgb_array')" if gui else "")
+            )
+        self.gui = gui
+        if gui:
+            pybullet.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0, physicsClientId=self._id)
+
+    # -- lifetime -----------------------------------------------------------
+    @property
+    def connected(self) -> bool:
+        return self._id >= 0 and pybullet.isConnected(physicsClientId=self._id)
+
+    def close(self) -> None:
+        """Disconnect the client; calling it again does nothing."""
+        if self._id >= 0:
+            if pybullet.isConnected(physicsClientId=self._id):
+                pybullet.disconnect(physicsClientId=self._id)
+            self._id = -1
+
+    def __del__(self) -> None:
+        # At interpreter shutdown the pybullet module may be gone already.
+        with contextlib.suppress(Exception):
+            self.close()
+
+    # -- world --------------------------------------------------------------
+    def reset_world(self, time_step: float, solver_iterations: int, gravity: float) -> None:
+        """Empty the world and set the physics parameters (the classic order)."""
+        cid = self._id
+        pybullet.resetSimulation(physicsClientId=cid)
+        pybullet.setPhysicsEngineParameter(
+            numSolverIterations=int(solver_iterations), physicsClientId=cid
+        )
+        pybullet.setTimeStep(time_step, physicsClientId=cid)
+        pybullet.setGravity(0, 0, gravity, physicsClientId=cid)
+
+    def load_plane(self) -> int:
+        plane = self.load_urdf("plane.urdf")
+        pybullet.changeVisualShape(plane, -1, rgbaColor=[1, 1, 1, 0.9], physicsClientId=self._id)
+        pybullet.configureDebugVisualizer(
+            pybullet.COV_ENABLE_PLANAR_REFLECTION, 0, physicsClientId=self._id
+        )
+        return plane
+
+    def load_urdf(
+        self,
+        file_name: str,
+        position: Sequence[float] = (0.0, 0.0, 0.0),
+        orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
+        self_collision: bool = False,
+        urdf_root: str = DATA_PATH,
+    ) -> int:
+        flags = pybullet.URDF_USE_SELF_COLLISION if self_collision else 0
+        return pybullet.loadURDF(
+            f"{urdf_root}/{file_name}",
+            list(position),
+            list(orientation),
+            flags=flags,
+            physicsClientId=self._id,
+        )
+
+    def step(self) -> None:
+        pybullet.stepSimulation(physicsClientId=self._id)
+
+    def save_state(self) -> int:
+        return pybullet.saveState(physicsClientId=self._id)
+
+    def restore_state(self, state_id: int) -> None:
+        pybullet.restoreState(stateId=state_id, physicsClientId=self._id)
+
+    # -- bodies and joints ----------------------------------------------------
+    def joint_names(self, body: int) -> list[tuple[str, str]]:
+        """(joint name, child link name) for every joint, in index order."""
+        cid = self._id
+        infos = (
+            pybullet.getJointInfo(body, i, physicsClientId=cid)
+            for i in range(pybullet.getNumJoints(body, physicsClientId=cid))
+        )
+        return [(info[1].decode(), info[12].decode()) for info in infos]
+
+    def mass(self, body: int, link: int) -> float:
+        return pybullet.getDynamicsInfo(body, link, physicsClientId=self._id)[0]
+
+    def set_mass(self, body: int, link: int, mass: float) -> None:
+        pybullet.changeDynamics(body, link, mass=mass, physicsClientId=self._id)
+
+    def set_lateral_friction(self, body: int, link: int, friction: float) -> None:
+        pybullet.changeDynamics(body, link, lateralFriction=friction, physicsClientId=self._id)
+
+    def reset_joint(self, body: int, joint: int, angle: float) -> None:
+        pybullet.resetJointState(body, joint, angle, targetVelocity=0, physicsClientId=self._id)
+
+    def reset_base(
+        self, body: int, position: Sequence[float], orientation: Sequence[float]
+    ) -> None:
+        cid = self._id
+        pybullet.resetBasePositionAndOrientation(body, position, orientation, physicsClientId=cid)
+        pybullet.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
+
+    def add_point_constraint(
+        self,
+        body: int,
+        link_a: int,
+        link_b: int,
+        pivot_a: Sequence[float],
+        pivot_b: Sequence[float],
+    ) -> int:
+        return pybullet.createConstraint(
+            body,
+            link_a,
+            body,
+            link_b,
+            pybullet.JOINT_POINT2POINT,
+            [0, 0, 0],
+            list(pivot_a),
+            list(pivot_b),
+            physicsClientId=self._id,
+        )
+
+    def fix_base_in_air(self, body: int, height: float) -> None:
+        pybullet.createConstraint(
+            body,
+            -1,
+            -1,
+            -1,
+            pybullet.JOINT_FIXED,
+            [0, 0, 0],
+            [0, 0, 0],
+            [0, 0, height],
+            physicsClientId=self._id,
+        )
+
+    def free_joints(self, body: int, joints: Sequence[int]) -> None:
+        """Switch off PyBullet's built-in velocity motors so torques drive the joints."""
+        pybullet.setJointMotorControlArray(
+            body,
+            list(joints),
+            pybullet.VELOCITY_CONTROL,
+            targetVelocities=[0.0] * len(joints),
+            forces=[0.0] * len(joints),
+            physicsClientId=self._id,
+        )
+
+    def set_torques(self, body: int, joints: Sequence[int], torques: Sequence[float]) -> None:
+        pybullet.setJointMotorControlArray(
+            body, joints, pybullet.TORQUE_CONTROL, forces=torques, physicsClientId=self._id
+        )
+
+    def set_position_targets(
+        self,
+        body: int,
+        joints: Sequence[int],
+        targets: Sequence[float],
+        kp: float,
+        kd: float,
+        max_force: float,
+    ) -> None:
+        n = len(joints)
+        pybullet.setJointMotorControlArray(
+            body,
+            joints,
+            pybullet.POSITION_CONTROL,
+            targetPositions=targets,
+            positionGains=[kp] * n,
+            velocityGains=[kd] * n,
+            forces=[max_force] * n,
+            physicsClientId=self._id,
+        )
+
+    def joint_positions_velocities(
+        self, body: int, joints: Sequence[int]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        states = pybullet.getJointStates(body, joints, physicsClientId=self._id)
+        return (
+            np.array([s[0] for s in states]),
+            np.array([s[1] for s in states]),
+        )
+
+    def joint_torques(self, body: int, joints: Sequence[int]) -> np.ndarray:
+        states = pybullet.getJointStates(body, joints, physicsClientId=self._id)
+        return np.array([s[3] for s in states])
+
+    def base_pose(self, body: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """(position xyz, orientation quaternion xyzw) of the body's base."""
+        return pybullet.getBasePositionAndOrientation(body, physicsClientId=self._id)
+
+    def has_contact(self, body_a: int, body_b: int) -> bool:
+        return len(pybullet.getContactPoints(body_a, body_b, physicsClientId=self._id)) > 0
+
+    @staticmethod
+    def up_axis_z(orientation: Sequence[float]) -> float:
+        """World-z component of the body's local up axis (1 upright, -1 upside down)."""
+        x, y, _, _ = orientation
+        # Third row, third column of the rotation matrix of a unit quaternion.
+        return 1.0 - 2.0 * (x * x + y * y)
+
+    # -- camera -------------------------------------------------------------
+    def render(
+        self,
+        target: Sequence[float],
+        width: int,
+        height: int,
+        distance: float,
+        yaw: float,
+        pitch: float,
+        fov: float = 60.0,
+    ) -> np.ndarray:
+        """An RGB uint8 frame (height, width, 3) from CPU TinyRenderer."""
+        cid = self._id
+        view = pybullet.computeViewMatrixFromYawPitchRoll(
+            cameraTargetPosition=list(target),
+            distance=distance,
+            yaw=yaw,
+            pitch=pitch,
+            roll=0,
+            upAxisIndex=2,
+            physicsClientId=cid,
+        )
+        projection = pybullet.computeProjectionMatrixFOV(
+            fov=fov, aspect=width / height, nearVal=0.1, farVal=100.0, physicsClientId=cid
+        )
+        _, _, rgba, _, _ = pybullet.getCameraImage(
+            width=width,
+            height=height,
+            viewMatrix=view,
+            projectionMatrix=projection,
+            renderer=pybullet.ER_TINY_RENDERER,
+            flags=pybullet.ER_NO_SEGMENTATION_MASK,
+            physicsClientId=cid,
+        )
+        frame = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)
+        return np.ascontiguousarray(frame[:, :, :3])
+
+    def follow_with_gui_camera(
+        self, target: Sequence[float], distance: float, yaw: float, pitch: float
+    ) -> None:
+        pybullet.resetDebugVisualizerCamera(
+            distance, yaw, pitch, list(target), physicsClientId=self._id
+        )
