@@ -253,6 +253,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._start_state: int | None = None
         self._settled_state: tuple[int, np.ndarray] | None = None
         self._last_base_position = np.zeros(3)
+        self._previous_x = 0.0
         self._last_frame_time = 0.0
 
     # -- scene -------------------------------------------------------------------
@@ -278,6 +279,18 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         self._start_state = None if self.hard_reset else sim.save_state()
         self._settled_state = None
+
+    @property
+    def sim(self) -> BulletSim:
+        """The physics client (for tools and tests that need to reach the world)."""
+        return self._live_sim()
+
+    @property
+    def robot(self) -> Minitaur:
+        """The robot of the current episode."""
+        if self._robot is None:
+            raise ResetNeeded("call reset() before using the robot")
+        return self._robot
 
     def _live_sim(self) -> BulletSim:
         if self._sim is None:
@@ -317,8 +330,10 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             sim.follow_with_gui_camera(
                 [0, 0, 0], self.camera_distance, self.camera_yaw, self.camera_pitch
             )
-        self._last_base_position = np.zeros(3)
         position, _ = robot.base_pose()
+        # The classic reward measures the first step's displacement from the origin.
+        self._last_base_position = np.zeros(3)
+        self._previous_x = position[0]
         info["base_position"] = np.array(position)
         return self._observation(robot.observation()), info
 
@@ -424,7 +439,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             + info["reward_shake"]
         )
         info["base_position"] = position
-        info["x_velocity"] = float(displacement[0]) / self.dt
+        info["x_velocity"] = (float(position[0]) - self._previous_x) / self.dt
+        self._previous_x = float(position[0])
         return reward, info
 
     def has_fallen(self) -> bool:

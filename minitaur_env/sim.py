@@ -8,6 +8,8 @@ PyBullet offers one (stepping is the hot path of the env).
 from __future__ import annotations
 
 import contextlib
+import os
+import sys
 from collections.abc import Sequence
 
 import numpy as np
@@ -26,12 +28,18 @@ class BulletSim:
     """
 
     def __init__(self, gui: bool = False) -> None:
-        mode = pybullet.GUI if gui else pybullet.DIRECT
-        self._id: int = pybullet.connect(mode)
+        self._id = -1
+        if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+            raise RuntimeError(
+                "the PyBullet GUI needs a display and DISPLAY is not set; "
+                "use render_mode='rgb_array', or run under xvfb-run"
+            )
+        self._id = pybullet.connect(pybullet.GUI if gui else pybullet.DIRECT)
         if self._id < 0:
             raise RuntimeError(
-                "could not connect to PyBullet"
-                + (" (the GUI needs a display; use render_mode='rgb_array')" if gui else "")
+                "could not open the PyBullet GUI (PyBullet allows one GUI per process)"
+                if gui
+                else "could not connect to PyBullet"
             )
         self.gui = gui
         if gui:

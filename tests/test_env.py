@@ -1,0 +1,372 @@
+"""Behaviour of the gymnasium env: API, seeding, reward, termination, rendering, errors."""
+
+from __future__ import annotations
+
+import gc
+import time
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pybullet
+import pytest
+from gymnasium.error import ResetNeeded
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import minitaur_env
+from minitaur_env import DynamicsRanges, MinitaurBulletEnv
+
+
+def rollout(env: gym.Env, seed: int, steps: int, action_seed: int = 0):
+    rng = np.random.default_rng(action_seed)
+    obs, _ = env.reset(seed=seed)
+    observations, rewards = [obs], []
+    for _ in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 8).astype(np.float32))
+        observations.append(obs)
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    return np.array(observations), np.array(rewards)
+
+
+@pytest.fixture
+def env():
+    env = MinitaurBulletEnv()
+    yield env
+    env.close()
+
+
+# -- registration and checkers ------------------------------------------------------
+
+
+@pytest.mark.parametrize("env_id", minitaur_env.ENV_IDS)
+def test_registered_with_classic_spec(env_id):
+    spec = gym.spec(env_id)
+    assert spec.max_episode_steps == 1000
+    assert spec.reward_threshold == (5.0 if "Duck" in env_id else 15.0)
+
+
+def test_make_by_module_prefixed_id_and_classic_id_are_the_same_env():
+    a = gym.make("minitaur_env:MinitaurBullet-v0")
+    b = gym.make("MinitaurBulletEnv-v0")
+    assert type(a.unwrapped) is type(b.unwrapped) is MinitaurBulletEnv
+    a.close()
+    b.close()
+
+
+@pytest.mark.parametrize("env_id", minitaur_env.ENV_IDS)
+def test_gymnasium_and_sb3_checkers_pass_without_warnings(env_id, display):
+    # gymnasium's checker also makes the env in every declared render mode, the GUI included.
+    env = gym.make(env_id)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gym_check_env(env.unwrapped)
+        sb3_check_env(env.unwrapped, warn=True)
+    env.close()
+
+
+def test_spaces_and_metadata(env):
+    assert env.action_space == gym.spaces.Box(-1, 1, (8,), np.float32)
+    assert env.observation_space.shape == (28,)
+    assert env.observation_space.dtype == np.float32
+    assert env.metadata["render_fps"] == 100
+    slow = MinitaurBulletEnv(action_repeat=2)
+    assert slow.metadata["render_fps"] == 50 and env.metadata["render_fps"] == 100
+    slow.close()
+
+
+def test_observations_are_float32_and_inside_the_space_under_violent_actions(env):
+    rng = np.random.default_rng(1)
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        assert obs.dtype == np.float32 and env.observation_space.contains(obs)
+        action = np.zeros(8)
+        for step in range(300):
+            if step % 10 == 0:
+                action = np.sign(rng.uniform(-1, 1, 8))
+            obs, _, terminated, _, _ = env.step(action.astype(np.float32))
+            assert obs.dtype == np.float32
+            assert env.observation_space.contains(obs), obs
+            if terminated:
+                break
+
+
+# -- seeding ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"randomize_dynamics": False}, {"observation_noise_stdev": 0.01}],
+    ids=["randomized", "fixed", "noisy"],
+)
+def test_same_seed_gives_identical_trajectories(kwargs):
+    first, second = MinitaurBulletEnv(**kwargs), MinitaurBulletEnv(**kwargs)
+    # Interleave the two envs in one process: they must not share any state.
+    obs_a, rew_a = rollout(first, seed=7, steps=150)
+    rollout(second, seed=99, steps=50)
+    obs_b, rew_b = rollout(second, seed=7, steps=150)
+    np.testing.assert_array_equal(obs_a, obs_b)
+    np.testing.assert_array_equal(rew_a, rew_b)
+    first.close()
+    second.close()
+
+
+def test_different_seeds_draw_different_dynamics(env):
+    _, info_a = env.reset(seed=1)
+    _, info_b = env.reset(seed=2)
+    assert info_a["dynamics"] != info_b["dynamics"]
+    ranges = DynamicsRanges()
+    for info in (info_a, info_b):
+        assert ranges.battery_voltage[0] <= info["dynamics"].battery_voltage
+        assert info["dynamics"].battery_voltage <= ranges.battery_voltage[1]
+        assert ranges.foot_friction[0] <= info["dynamics"].foot_friction
+        assert info["dynamics"].foot_friction <= ranges.foot_friction[1]
+
+
+def test_randomization_changes_the_dynamics_and_can_be_switched_off():
+    fixed = MinitaurBulletEnv(randomize_dynamics=False)
+    obs_fixed_1, _ = rollout(fixed, seed=1, steps=30)
+    obs_fixed_2, _ = rollout(fixed, seed=2, steps=30)
+    np.testing.assert_array_equal(obs_fixed_1, obs_fixed_2)
+    randomized = MinitaurBulletEnv()
+    obs_random, _ = rollout(randomized, seed=1, steps=30)
+    assert not np.array_equal(obs_random, obs_fixed_1)
+    fixed.close()
+    randomized.close()
+
+
+# -- reward, info, termination ---------------------------------------------------------
+
+
+def test_reward_terms_sum_to_the_reward_and_info_reports_motion():
+    env = MinitaurBulletEnv(drift_weight=0.3, shake_weight=0.2)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    previous_x = env.robot.base_pose()[0][0]
+    for _ in range(50):
+        _, reward, _, _, info = env.step(rng.uniform(-1, 1, 8).astype(np.float32))
+        terms = [info[k] for k in ("reward_forward", "reward_energy", "reward_drift")]
+        terms.append(info["reward_shake"])
+        assert reward == pytest.approx(sum(terms), abs=1e-12)
+        assert info["reward_energy"] <= 0 and info["reward_drift"] <= 0
+        assert info["reward_shake"] <= 0
+        x = info["base_position"][0]
+        assert info["x_velocity"] == pytest.approx((x - previous_x) / 0.01, abs=1e-6)
+        previous_x = x
+    assert info["motors_enabled"].shape == (8,)
+    env.close()
+
+
+def test_upside_down_robot_terminates(env):
+    env.reset(seed=0)
+    upside_down = (1.0, 0.0, 0.0, 0.0)  # 180 degrees about x
+    env.sim.reset_base(env.robot.body, (0.0, 0.0, 0.4), upside_down)
+    assert env.has_fallen()
+    _, _, terminated, truncated, _ = env.step(np.zeros(8, np.float32))
+    assert terminated and not truncated
+
+
+def test_standing_robot_does_not_terminate_and_time_limit_truncates():
+    env = gym.make("MinitaurBulletEnv-v0", max_episode_steps=20)
+    env.reset(seed=0)
+    for step in range(20):
+        _, _, terminated, truncated, _ = env.step(np.zeros(8, np.float32))
+        assert not terminated
+        assert truncated == (step == 19)
+    env.close()
+
+
+def test_distance_limit_terminates():
+    env = MinitaurBulletEnv(distance_limit=0.05)
+    env.reset(seed=0)
+    env.sim.reset_base(env.robot.body, (0.1, 0.0, 0.2), (0, 0, 0, 1))
+    _, _, terminated, _, _ = env.step(np.zeros(8, np.float32))
+    assert terminated
+    env.close()
+
+
+def test_duck_env_terminates_when_the_duck_touches_the_ground():
+    env = gym.make("MinitaurBulletDuckEnv-v0").unwrapped
+    env.reset(seed=0)
+    _, _, terminated, _, _ = env.step(np.zeros(8, np.float32))
+    assert not terminated and not env.lost_duck()
+    env.sim.reset_base(env._duck, (0.6, 0.0, 0.02), (0, 0, 0, 1))
+    _, _, terminated, _, _ = env.step(np.zeros(8, np.float32))
+    assert env.lost_duck() and terminated
+    env.close()
+
+
+def test_overheat_protection_switches_a_stalled_motor_off(env):
+    env.reset(seed=0)
+    robot = env.robot
+    stalled = np.array([3.0, 0, 0, 0, 0, 0, 0, 0])
+    for _ in range(500):  # exactly 1 s of physics steps: still allowed
+        robot._update_overheat(stalled)
+    assert robot.motors_enabled.all()
+    robot._update_overheat(stalled)
+    assert not robot.motors_enabled[0] and robot.motors_enabled[1:].all()
+    env.reset(seed=0)
+    assert env.robot.motors_enabled.all()
+
+
+# -- rendering --------------------------------------------------------------------------
+
+
+def test_rgb_array_frames_follow_the_robot_and_are_not_blank():
+    env = MinitaurBulletEnv(render_mode="rgb_array", width=160, height=120)
+    with pytest.raises(ResetNeeded):
+        env.render()
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
+    assert frame.std() > 10  # a blank (EGL-style) frame is uniform
+    # The camera follows the base: moving the robot far away keeps it in view.
+    env.sim.reset_base(env.robot.body, (5.0, 3.0, 0.2), (0, 0, 0, 1))
+    moved = env.render()
+    assert np.abs(moved.astype(int) - frame.astype(int)).mean() < 40
+    env.close()
+
+
+def test_default_frame_size_is_640x480():
+    env = MinitaurBulletEnv(render_mode="rgb_array")
+    env.reset(seed=0)
+    assert env.render().shape == (480, 640, 3)
+    env.close()
+
+
+def test_human_mode_opens_the_gui_and_follows_the_robot(display):
+    env = MinitaurBulletEnv(render_mode="human")
+    env.reset(seed=0)
+    assert env.sim.gui
+    start = time.perf_counter()
+    for _ in range(10):
+        env.step(np.zeros(8, np.float32))
+    assert time.perf_counter() - start >= 0.09  # paced at real time, 10 x 0.01 s
+    assert env.render() is None
+    env.close()
+
+
+def test_human_mode_without_display_fails_clearly(monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    with pytest.raises(RuntimeError, match="DISPLAY"):
+        MinitaurBulletEnv(render_mode="human")
+
+
+def test_render_without_mode_warns_and_returns_none(env):
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match="render_mode"):
+        assert env.render() is None
+
+
+# -- bad input ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("action", "message"),
+    [
+        (np.full(8, np.nan), "finite"),
+        (np.array([0, 0, np.inf, 0, 0, 0, 0, 0]), "finite"),
+        (np.zeros(7), "shape"),
+        (np.zeros((2, 8)), "shape"),
+        (np.array([0, 0, 0, 1.02, 0, 0, 0, 0]), r"action\[3\]"),
+        (["a"] * 8, "numeric"),
+    ],
+)
+def test_bad_actions_raise_value_error(env, action, message):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step(action)
+
+
+def test_classic_action_tolerance_is_accepted(env):
+    env.reset(seed=0)
+    env.step(np.full(8, 1.01))
+
+
+def test_step_before_reset_raises(env):
+    with pytest.raises(ResetNeeded, match="reset"):
+        env.step(np.zeros(8, np.float32))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"energy_weight": -1.0}, "energy_weight"),
+        ({"drift_weight": float("nan")}, "drift_weight"),
+        ({"width": 0}, "width"),
+        ({"height": 100.5}, "height"),
+        ({"render_mode": "window"}, "render_mode"),
+        ({"motor_control": "magic"}, "motor_control"),
+        ({"action_repeat": 0}, "action_repeat"),
+        ({"distance_limit": -1.0}, "distance_limit"),
+        ({"observation_noise_stdev": -0.1}, "observation_noise_stdev"),
+    ],
+)
+def test_invalid_arguments_fail_at_construction(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        MinitaurBulletEnv(**kwargs)
+
+
+def test_unknown_argument_fails_at_construction():
+    with pytest.raises(TypeError, match="not_an_option"):
+        gym.make("MinitaurBulletEnv-v0", not_an_option=1)
+
+
+def test_invalid_dynamics_ranges_are_rejected():
+    with pytest.raises(ValueError, match="foot_friction"):
+        DynamicsRanges(foot_friction=(1.5, 0.8))
+
+
+# -- lifetime ------------------------------------------------------------------------------
+
+
+def _rss_mib() -> float:
+    with open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    raise RuntimeError("no VmRSS")
+
+
+def test_close_is_idempotent_and_frees_the_client():
+    env = MinitaurBulletEnv()
+    env.reset(seed=0)
+    client = env.sim._id
+    env.close()
+    env.close()
+    assert not pybullet.isConnected(physicsClientId=client)
+    with pytest.raises(RuntimeError, match="closed"):
+        env.reset()
+
+
+def test_200_envs_leave_no_client_connected_and_memory_flat():
+    clients = []
+    rss = []
+    for i in range(200):
+        env = MinitaurBulletEnv()
+        env.reset(seed=i)
+        env.step(np.zeros(8, np.float32))
+        clients.append(env.sim._id)
+        env.close()
+        if i in (49, 199):
+            gc.collect()
+            rss.append(_rss_mib())
+    assert not any(pybullet.isConnected(physicsClientId=c) for c in clients)
+    assert rss[1] - rss[0] < 20, f"memory grew {rss[1] - rss[0]:.1f} MiB over 150 envs"
+
+
+def test_works_in_subproc_vec_env_built_from_the_id():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    vec = make_vec_env(
+        "minitaur_env:MinitaurBulletEnv-v0", n_envs=2, seed=3, vec_env_cls=SubprocVecEnv
+    )
+    obs = vec.reset()
+    assert obs.shape == (2, 28) and obs.dtype == np.float32
+    for _ in range(5):
+        obs, rewards, _, infos = vec.step(np.zeros((2, 8), np.float32))
+    assert rewards.shape == (2,) and "x_velocity" in infos[0]
+    vec.close()
