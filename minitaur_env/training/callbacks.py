@@ -1,0 +1,144 @@
+"""Callbacks SB3 lacks: a policy-video recorder and a divergence guard."""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.vec_env import unwrap_vec_normalize
+
+from minitaur_env.training.envs import make_env
+from minitaur_env.training.video import record_video
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss, an action or a network weight became NaN or infinite."""
+
+
+class DivergenceGuardCallback(BaseCallback):
+    """Stop training at the first non-finite loss, action or weight.
+
+    Losses are read from the logger after every update; weights are checked every
+    ``check_freq`` steps, which should be placed before the checkpoint callback so a
+    diverged model is never saved over a good checkpoint.
+    """
+
+    def __init__(self, check_freq: int, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.check_freq = max(1, check_freq)
+        self._last_check = 0
+
+    def _on_step(self) -> bool:
+        for key, value in self.logger.name_to_value.items():
+            if key.startswith("train/") and not math.isfinite(float(value)):
+                raise TrainingDiverged(f"{key} became {value} at step {self.num_timesteps}")
+        actions = self.locals.get("actions")
+        if actions is not None and not np.all(np.isfinite(actions)):
+            raise TrainingDiverged(f"the policy produced a NaN action at step {self.num_timesteps}")
+        if self.num_timesteps - self._last_check >= self.check_freq:
+            self._last_check = self.num_timesteps
+            self.check_weights()
+        return True
+
+    def check_weights(self) -> None:
+        with torch.no_grad():
+            for name, parameter in self.model.policy.named_parameters():
+                if not torch.isfinite(parameter).all():
+                    raise TrainingDiverged(
+                        f"weight {name} became non-finite at step {self.num_timesteps}"
+                    )
+
+
+class VideoRecorderCallback(BaseCallback):
+    """Every ``video_freq`` env steps, record an episode of the deterministic policy.
+
+    The episode runs in an env of its own (its own seed, its own simulator), and the
+    policy is only queried, so training's env and random streams are untouched.
+    Videos go to ``run_dir/videos/`` and a copy to ``shared_dir``.
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        env_kwargs: dict[str, Any],
+        video_freq: int,
+        video_length: int,
+        run_videos_dir: str | Path,
+        shared_dir: str | Path | None,
+        name_prefix: str,
+        seed: int = 0,
+        fps: float = 50.0,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose)
+        self.env_id = env_id
+        self.env_kwargs = env_kwargs
+        self.video_freq = video_freq
+        self.video_length = video_length
+        self.run_videos_dir = Path(run_videos_dir)
+        self.shared_dir = Path(shared_dir) if shared_dir else None
+        self.name_prefix = name_prefix
+        self.seed = seed
+        self.fps = fps
+        self.videos: list[Path] = []
+        self._env = None
+        self._last_video_step = 0
+
+    def _init_callback(self) -> None:
+        self._last_video_step = self.num_timesteps
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps - self._last_video_step >= self.video_freq:
+            self._last_video_step = self.num_timesteps
+            self.record(self.run_videos_dir / f"{self.name_prefix}-step-{self.num_timesteps}.mp4")
+        return True
+
+    def record(self, path: Path) -> Path:
+        if self._env is None:
+            self._env = make_env(self.env_id, self.env_kwargs, render_mode="rgb_array")
+        normalizer = unwrap_vec_normalize(self.model.get_env())
+
+        def policy(obs: np.ndarray) -> np.ndarray:
+            if normalizer is not None:
+                obs = normalizer.normalize_obs(obs)
+            action, _ = self.model.predict(obs, deterministic=True)
+            return action
+
+        stats = record_video(
+            self._env, policy, path, max_steps=self.video_length, fps=self.fps, seed=self.seed
+        )
+        self.videos.append(path)
+        if self.shared_dir is not None:
+            self.shared_dir.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, self.shared_dir / path.name)
+        if self.verbose:
+            print(f"video: {path} ({stats['frames']} frames, return {stats['returns'][0]:.2f})")
+        return path
+
+    def _on_training_end(self) -> None:
+        if self._env is not None:
+            self._env.close()
+            self._env = None
+
+
+class LeanCheckpointCallback(CheckpointCallback):
+    """SB3's CheckpointCallback that keeps only the newest replay buffer.
+
+    Model zips are small and all kept; a replay buffer of 1M transitions is hundreds
+    of MB, and only the newest is needed to resume.
+    """
+
+    def _on_step(self) -> bool:
+        saved = self.n_calls % self.save_freq == 0
+        result = super()._on_step()
+        if saved and self.save_replay_buffer:
+            newest = Path(self._checkpoint_path("replay_buffer_", extension="pkl"))
+            for old in Path(self.save_path).glob(f"{self.name_prefix}_replay_buffer_*_steps.pkl"):
+                if old != newest:
+                    old.unlink(missing_ok=True)
+        return result

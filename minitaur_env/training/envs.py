@@ -1,0 +1,92 @@
+"""Env factories for training, evaluation and video, from a gymnasium id."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import (
+    DummyVecEnv,
+    SubprocVecEnv,
+    VecCheckNan,
+    VecEnv,
+    VecNormalize,
+)
+
+import minitaur_env  # noqa: F401  (registers the Minitaur ids)
+from minitaur_env.training import UsageError
+
+VEC_ENV_CLASSES = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
+
+
+def qualified_env_id(env_id: str) -> str:
+    """The id, checked, with a ``module:`` prefix where a fresh process needs the import.
+
+    SubprocVecEnv workers start from a clean interpreter, where only a prefixed id
+    such as ``minitaur_env:MinitaurBulletEnv-v0`` is known to gymnasium.
+    """
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as error:
+        raise UsageError(f"unknown env id {env_id!r}: {error}") from error
+    entry_point = spec.entry_point
+    if ":" not in env_id and isinstance(entry_point, str):
+        module = entry_point.split(":")[0].split(".")[0]
+        if module == "minitaur_env":
+            return f"{module}:{env_id}"
+    return env_id
+
+
+def make_training_env(
+    env_id: str,
+    n_envs: int = 1,
+    seed: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    vec_env: str = "dummy",
+    monitor_dir: str | None = None,
+    append_monitor: bool = False,
+) -> VecEnv:
+    """Monitored, vectorized env that raises as soon as a NaN reaches it or leaves it."""
+    if vec_env not in VEC_ENV_CLASSES:
+        raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_CLASSES)}, got {vec_env!r}")
+    if n_envs < 1:
+        raise UsageError(f"--n-envs must be >= 1, got {n_envs}")
+    make_env(env_id, env_kwargs).close()  # bad kwargs fail here, not inside a worker
+    env = make_vec_env(
+        qualified_env_id(env_id),
+        n_envs=n_envs,
+        seed=seed,
+        env_kwargs=env_kwargs or {},
+        monitor_dir=monitor_dir,
+        monitor_kwargs={"override_existing": not append_monitor},
+        vec_env_cls=VEC_ENV_CLASSES[vec_env],
+    )
+    return VecCheckNan(env, raise_exception=True)
+
+
+def make_eval_env(
+    env_id: str,
+    seed: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    normalize: bool = False,
+    render_mode: str | None = None,
+) -> VecEnv:
+    """One monitored env; with ``normalize`` a frozen VecNormalize that reports raw rewards."""
+    kwargs = dict(env_kwargs or {})
+    if render_mode is not None:
+        kwargs["render_mode"] = render_mode
+    make_env(env_id, kwargs).close()
+    env = make_vec_env(qualified_env_id(env_id), n_envs=1, seed=seed, env_kwargs=kwargs)
+    if normalize:
+        env = VecNormalize(env, training=False, norm_reward=False)
+    return env
+
+
+def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, **extra: Any) -> gym.Env:
+    """A single gymnasium env (with its registered time limit)."""
+    qualified = qualified_env_id(env_id)
+    try:
+        return gym.make(qualified, **{**(env_kwargs or {}), **extra})
+    except (TypeError, ValueError) as error:
+        raise UsageError(f"cannot make {env_id} with {env_kwargs or {}}: {error}") from error

@@ -1,0 +1,119 @@
+"""Videos of a policy: H.264 mp4 through imageio-ffmpeg, optional GIF, atomic writes."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import gymnasium as gym
+import imageio.v2 as imageio
+import numpy as np
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary path beside ``path`` that replaces it only if the block succeeds."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    handle, temp_name = tempfile.mkstemp(
+        prefix=f".{target.stem}.", suffix=target.suffix, dir=target.parent
+    )
+    os.close(handle)
+    temp = Path(temp_name)
+    try:
+        yield temp
+        os.replace(temp, target)
+    finally:
+        temp.unlink(missing_ok=True)
+
+
+def frame_stride(control_fps: float, video_fps: float) -> int:
+    """Render every n-th control step so the video plays back at real time."""
+    return max(1, round(control_fps / video_fps))
+
+
+def record_video(
+    env: gym.Env,
+    policy: Policy,
+    path: str | os.PathLike[str],
+    episodes: int = 1,
+    max_steps: int = 1000,
+    fps: float = 50.0,
+    seed: int | None = None,
+    gif_path: str | os.PathLike[str] | None = None,
+    gif_width: int = 320,
+    gif_fps: float = 12.5,
+) -> dict[str, float]:
+    """Run ``episodes`` episodes of ``policy`` in ``env`` (render_mode="rgb_array").
+
+    Frames are taken every ``frame_stride`` control steps and streamed to an H.264
+    mp4 at ``control rate / stride`` fps, i.e. real time. Returns the frame count,
+    the fps and each episode's return.
+    """
+    if env.render_mode != "rgb_array":
+        raise ValueError(f"record_video needs render_mode='rgb_array', got {env.render_mode!r}")
+    control_fps = env.metadata.get("render_fps", fps)
+    stride = frame_stride(control_fps, fps)
+    video_fps = control_fps / stride
+    gif_every = max(1, round(video_fps / gif_fps))
+    gif_frames: list[np.ndarray] = []
+    returns: list[float] = []
+    frames = 0
+    with atomic_path(path) as temp:
+        writer = imageio.get_writer(
+            temp,
+            format="FFMPEG",
+            mode="I",
+            fps=video_fps,
+            codec="libx264",
+            quality=7,
+            pixelformat="yuv420p",
+            macro_block_size=8,
+        )
+        try:
+            for episode in range(episodes):
+                obs, _ = env.reset(seed=None if seed is None else seed + episode)
+                episode_return = 0.0
+                for step in range(max_steps):
+                    if step % stride == 0:
+                        frame = env.render()
+                        writer.append_data(frame)
+                        if gif_path is not None and frames % gif_every == 0:
+                            gif_frames.append(_shrink(frame, gif_width))
+                        frames += 1
+                    obs, reward, terminated, truncated, _ = env.step(policy(obs))
+                    episode_return += float(reward)
+                    if terminated or truncated:
+                        break
+                returns.append(episode_return)
+        finally:
+            writer.close()
+    if gif_path is not None:
+        write_gif(gif_frames, gif_path, fps=video_fps / gif_every)
+    return {"frames": frames, "fps": video_fps, "returns": returns}
+
+
+def _shrink(frame: np.ndarray, width: int) -> np.ndarray:
+    step = max(1, frame.shape[1] // width)
+    return frame[::step, ::step]
+
+
+def write_gif(frames: list[np.ndarray], path: str | os.PathLike[str], fps: float) -> None:
+    with atomic_path(path) as temp:
+        imageio.mimsave(temp, frames, format="GIF", duration=1000.0 / fps, loop=0)
+
+
+def read_video(path: str | os.PathLike[str]) -> tuple[np.ndarray, float]:
+    """All frames of a video and its fps (for tests and checks)."""
+    reader = imageio.get_reader(path, format="FFMPEG")
+    try:
+        fps = float(reader.get_meta_data()["fps"])
+        frames = np.stack(list(reader.iter_data()))
+    finally:
+        reader.close()
+    return frames, fps

@@ -1,0 +1,194 @@
+"""train.py end to end, in subprocesses with tiny budgets."""
+
+from __future__ import annotations
+
+import signal
+import time
+import zipfile
+
+import numpy as np
+import pytest
+import yaml
+from stable_baselines3 import PPO, SAC
+
+from minitaur_env.training.video import read_video
+from tests.scripts import TINY, error_lines, run_script, start_script
+
+FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
+
+
+def run_dir_of(root, algo="sac", env="MinitaurBulletEnv-v0", n=1):
+    return root / "logs" / algo / f"{env}_{n}"
+
+
+def test_default_run_leaves_everything_behind(tmp_path):
+    result = run_script(
+        "train.py",
+        "-n", "240", *FAST_SAC,
+        "--eval-freq", "120", "--eval-episodes", "2",
+        "--save-freq", "80", "--video-freq", "200", "--video-length", "30",
+        *TINY, cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    run = run_dir_of(tmp_path)
+    config = yaml.safe_load((run / "config.yml").read_text())
+    assert config["algo"] == "sac" and config["n_timesteps"] == 240
+    assert config["hyperparams"]["policy_kwargs"] == {"net_arch": [256, 256]}
+    assert config["hyperparams"]["learning_starts"] == 50
+    assert "train.py" in (run / "command.txt").read_text()
+
+    with np.load(run / "evaluations.npz") as evaluations:
+        np.testing.assert_array_equal(evaluations["timesteps"], [120, 240])
+        assert evaluations["results"].shape == (2, 2)
+        np.testing.assert_array_equal(evaluations["ep_lengths"], 40)
+
+    model = SAC.load(run / "best_model.zip", device="cpu")
+    action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
+    assert action.shape == (8,) and np.all(np.abs(action) <= 1)
+    assert SAC.load(run / "final_model.zip", device="cpu").num_timesteps == 240
+
+    checkpoints = sorted(p.name for p in (run / "checkpoints").iterdir())
+    assert checkpoints == [
+        "rl_model_160_steps.zip",
+        "rl_model_240_steps.zip",
+        "rl_model_80_steps.zip",
+        "rl_model_replay_buffer_240_steps.pkl",
+    ]
+    assert (run / "monitor" / "0.monitor.csv").read_text().count("\n") > 2
+    assert "train/critic_loss" in (run / "progress.csv").read_text()
+    assert (run / "learning_curve.png").read_bytes().startswith(b"\x89PNG")
+
+    video = run / "videos" / "sac-MinitaurBulletEnv-v0_1-step-200.mp4"
+    frames, fps = read_video(video)
+    assert fps == 50 and frames.shape == (15, 480, 640, 3)  # 30 steps at 100 Hz, every 2nd
+    assert frames.std() > 10
+    assert (tmp_path / "videos" / video.name).read_bytes() == video.read_bytes()
+    assert "last eval" in result.stdout and "steps/s" in result.stdout
+
+
+def test_video_recording_does_not_change_training(tmp_path):
+    common = ["-n", "150", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0", *TINY]
+    plain = run_script("train.py", *common, cwd=tmp_path)
+    filmed = run_script(
+        "train.py", *common, "--video-freq", "60", "--video-length", "10", cwd=tmp_path
+    )
+    assert plain.returncode == 0 and filmed.returncode == 0, filmed.stderr
+    a = SAC.load(run_dir_of(tmp_path, n=1) / "final_model.zip", device="cpu")
+    b = SAC.load(run_dir_of(tmp_path, n=2) / "final_model.zip", device="cpu")
+    assert len(list((run_dir_of(tmp_path, n=2) / "videos").glob("*.mp4"))) == 2
+    for (name, pa), (_, pb) in zip(
+        a.policy.state_dict().items(), b.policy.state_dict().items(), strict=True
+    ):
+        assert np.array_equal(pa.numpy(), pb.numpy()), name
+
+
+def _wait_for(path_glob, root, timeout=120):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = list(root.glob(path_glob))
+        if found:
+            return found
+        time.sleep(0.2)
+    raise TimeoutError(path_glob)
+
+
+def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
+    args = ["-n", "600", *FAST_SAC, "--eval-freq", "0", "--save-freq", "100", *TINY]
+    process = start_script("train.py", *args, cwd=tmp_path)
+    run = run_dir_of(tmp_path)
+    _wait_for("logs/sac/*/checkpoints/rl_model_replay_buffer_200_steps.pkl", tmp_path)
+    process.send_signal(signal.SIGKILL)
+    process.wait(timeout=30)
+    saved = max(
+        int(p.name.split("_")[2]) for p in (run / "checkpoints").glob("rl_model_*_steps.zip")
+    )
+    assert 200 <= saved < 600
+
+    result = run_script("train.py", "--resume", str(run), cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "(from " in result.stdout
+    resumed_from = int(result.stdout.split("(from ")[1].split(")")[0])
+    assert resumed_from >= saved - 100  # loses at most --save-freq steps
+    final = SAC.load(run / "final_model.zip", device="cpu")
+    assert final.num_timesteps == 600
+    final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_600_steps.pkl")
+    # The pre-kill transitions were kept. SB3 checkpoints a step before storing its
+    # transition, so each checkpoint (the resumed one, the last one) lacks one.
+    assert final.replay_buffer.size() == 600 - 2
+    assert list(run.glob("progress-resumed-at-*.csv"))
+
+
+def test_ctrl_c_saves_model_and_replay_buffer(tmp_path):
+    args = ["-n", "100000", *FAST_SAC, "--eval-freq", "0", "--save-freq", "100", *TINY]
+    process = start_script("train.py", *args, cwd=tmp_path)
+    _wait_for("logs/sac/*/checkpoints/rl_model_100_steps.zip", tmp_path)
+    time.sleep(1.0)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert "interrupted: saved" in stderr and "--resume" in stderr
+    run = run_dir_of(tmp_path)
+    steps = int(stderr.split("rl_model_")[1].split("_steps")[0])
+    assert steps > 100
+    assert (run / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.pkl").exists()
+    assert SAC.load(run / "checkpoints" / f"rl_model_{steps}_steps.zip").num_timesteps == steps
+
+
+def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
+    result = run_script(
+        "train.py", "-n", "400", "--hyperparams", "learning_starts=30", "learning_rate=1e12",
+        "batch_size=16", "--eval-freq", "0", "--save-freq", "10", *TINY, cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 1
+    lines = error_lines(result)
+    assert len(lines) == 1 and "training diverged" in lines[0]
+    assert "last good checkpoint" in lines[0]
+    for checkpoint in (run_dir_of(tmp_path) / "checkpoints").glob("rl_model_*_steps.zip"):
+        model = SAC.load(checkpoint, device="cpu")
+        for parameter in model.policy.parameters():
+            assert parameter.isfinite().all(), checkpoint.name
+    assert not (run_dir_of(tmp_path) / "final_model.zip").exists()
+
+
+def test_generic_on_cartpole_with_ppo(tmp_path):
+    result = run_script(
+        "train.py", "--algo", "ppo", "--env", "CartPole-v1", "-n", "256",
+        "--hyperparams", "n_steps=64", "batch_size=32", "--n-envs", "2",
+        "--eval-freq", "128", "--eval-episodes", "2", "--save-freq", "128", "-v", "0",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    run = run_dir_of(tmp_path, "ppo", "CartPole-v1")
+    model = PPO.load(run / "best_model.zip", device="cpu")
+    assert model.action_space.n == 2
+    with np.load(run / "evaluations.npz") as evaluations:
+        assert len(evaluations["timesteps"]) == 2
+    assert zipfile.is_zipfile(run / "checkpoints" / "rl_model_128_steps.zip")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--no-such-flag"], "unrecognized arguments: --no-such-flag"),
+        (["--algo", "dqn"], "invalid choice: 'dqn'"),
+        (["--env", "NoSuchEnv-v9"], "unknown env id 'NoSuchEnv-v9'"),
+        (["--eval-freq", "-5"], "--eval-freq must be >= 0"),
+        (["-f", "{file}/logs"], "cannot write to"),
+        (["--hyperparams", "not_a_param=1"], "invalid hyperparameters for sac"),
+        (["--hyperparams", "novalue"], "expects key=value"),
+        (["--resume", "{tmp}/missing-run"], "no config.yml"),
+        (["--env-kwargs", "energy_weight=-1"], "energy_weight must be finite and >= 0"),
+    ],
+)
+def test_user_errors_give_one_clear_line(tmp_path, args, message):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    args = [a.replace("{file}", str(blocker)).replace("{tmp}", str(tmp_path)) for a in args]
+    result = run_script("train.py", *args, cwd=tmp_path, timeout=120)
+    assert result.returncode == 2
+    lines = error_lines(result)
+    assert len(lines) == 1, result.stderr
+    assert message in lines[0]
+    assert not (tmp_path / "logs" / "sac").exists() or not any(
+        (tmp_path / "logs" / "sac").iterdir()
+    )
