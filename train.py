@@ -66,6 +66,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--tensorboard-log", default=None, help="TensorBoard log folder (default: none)")
     add("--progress", action="store_true", help="show a progress bar")
     add("--device", default="auto", help="torch device: auto, cpu, cuda (default: auto)")
+    add("--num-threads", type=int, default=0, help="torch CPU threads; 0: torch's default")
     add("--conf-file", default=None, help="YAML hyperparameter file (default: the packaged one)")
     add(
         "--hyperparams",
@@ -178,6 +179,7 @@ def build_callbacks(config: dict[str, Any], run_dir: Path, model, eval_env, resu
     from minitaur_env.training.callbacks import (
         DivergenceGuardCallback,
         LeanCheckpointCallback,
+        SaveVecNormalizeCallback,
         VideoRecorderCallback,
     )
 
@@ -202,6 +204,9 @@ def build_callbacks(config: dict[str, Any], run_dir: Path, model, eval_env, resu
             log_path=str(run_dir),
             best_model_save_path=str(run_dir),
             deterministic=True,
+            callback_on_new_best=SaveVecNormalizeCallback(run_dir / "best_model_vecnormalize.pkl")
+            if config["normalize"]
+            else None,
             verbose=config.get("verbose", 1),
         )
         evaluations = run_dir / "evaluations.npz"
@@ -329,6 +334,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from minitaur_env.training.callbacks import TrainingDiverged
 
+    if args.num_threads > 0:
+        import torch
+
+        torch.set_num_threads(args.num_threads)
+
     run_dir = None
     try:
         config, run_dir, resume_from = prepare_run(args)
@@ -384,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
     if status == 0:
         model.save(run_dir / "final_model.zip")
         if config["normalize"]:
-            model.get_vec_normalize_env().save(str(run_dir / "vecnormalize.pkl"))
+            model.get_vec_normalize_env().save(str(run_dir / "final_model_vecnormalize.pkl"))
     summarize(run_dir, model, elapsed, model.num_timesteps - start_steps, config["env"])
     return status
 

@@ -142,3 +142,17 @@ class LeanCheckpointCallback(CheckpointCallback):
                 if old != newest:
                     old.unlink(missing_ok=True)
         return result
+
+
+class SaveVecNormalizeCallback(BaseCallback):
+    """Save the training env's VecNormalize statistics (as EvalCallback's new-best hook)."""
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__()
+        self.path = Path(path)
+
+    def _on_step(self) -> bool:
+        normalizer = self.model.get_vec_normalize_env()
+        if normalizer is not None:
+            normalizer.save(str(self.path))
+        return True

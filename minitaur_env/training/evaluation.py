@@ -1,0 +1,257 @@
+"""Finding, loading and judging a trained policy (used by evaluate.py and benchmarks)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import yaml
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecNormalize
+
+from minitaur_env.training import UsageError
+from minitaur_env.training.config import ALGORITHMS, algorithm_class
+from minitaur_env.training.runs import checkpoints, run_dirs, vecnormalize_path
+
+REWARD_TERMS = ("reward_forward", "reward_energy", "reward_drift", "reward_shake")
+PRETRAINED_DIR = Path(__file__).resolve().parents[2] / "pretrained"
+
+
+@dataclasses.dataclass
+class LoadedPolicy:
+    """A model, the VecNormalize statistics it was trained with, and where it came from."""
+
+    model: BaseAlgorithm
+    algo: str
+    path: Path
+    env_id: str | None
+    env_kwargs: dict[str, Any]
+    normalizer: VecNormalize | None
+
+    def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        if self.normalizer is not None:
+            obs = self.normalizer.normalize_obs(obs)
+        action, _ = self.model.predict(obs, deterministic=deterministic)
+        return action
+
+
+def infer_algo(path: Path) -> str:
+    """The algorithm of an SB3 zip, from the module of its saved policy class."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, OSError) as error:
+        raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
+    module = str(data.get("policy_class", {}).get("__module__", ""))
+    for name in ALGORITHMS:
+        if f".{name}." in module or module.endswith(f".{name}"):
+            return name
+    raise UsageError(f"cannot tell the algorithm of {path} ({module!r}); pass --algo")
+
+
+def _normalizer_for(model_path: Path) -> Path | None:
+    """The VecNormalize statistics saved beside a model, if any."""
+    candidates = [model_path.with_name(f"{model_path.stem}_vecnormalize.pkl")]
+    if model_path.parent.name == "checkpoints":
+        steps = model_path.stem.split("_")[-2]
+        if steps.isdigit():
+            candidates.append(vecnormalize_path(model_path.parents[1], int(steps)))
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def _run_config(model_path: Path) -> dict[str, Any]:
+    for folder in (model_path.parent, model_path.parents[1]):
+        config = folder / "config.yml"
+        if config.is_file():
+            return yaml.safe_load(config.read_text()) or {}
+    provenance = model_path.with_suffix(".yml")
+    if provenance.is_file():
+        return yaml.safe_load(provenance.read_text()) or {}
+    return {}
+
+
+def load_policy(model_path: Path, algo: str | None = None, device: str = "auto") -> LoadedPolicy:
+    if not model_path.is_file():
+        raise UsageError(f"model file not found: {model_path}")
+    config = _run_config(model_path)
+    algo = algo or config.get("algo") or infer_algo(model_path)
+    cls = algorithm_class(algo)
+    try:
+        model = cls.load(model_path, device=device)
+    except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
+        raise UsageError(f"cannot load {model_path} as a {algo} model: {error}") from error
+    stats = _normalizer_for(model_path)
+    normalizer = None
+    if stats is not None:
+        with stats.open("rb") as handle:
+            normalizer = pickle.load(handle)
+        normalizer.training = False
+        normalizer.norm_reward = False
+    return LoadedPolicy(
+        model=model,
+        algo=algo,
+        path=model_path,
+        env_id=config.get("env"),
+        env_kwargs=dict(config.get("env_kwargs") or {}),
+        normalizer=normalizer,
+    )
+
+
+def pretrained_models(folder: Path = PRETRAINED_DIR) -> list[tuple[float, Path]]:
+    """(eval mean return, zip) of the shipped policies, best first."""
+    found = []
+    if folder.is_dir():
+        for provenance in folder.glob("*.yml"):
+            model = provenance.with_suffix(".zip")
+            info = yaml.safe_load(provenance.read_text()) or {}
+            if model.is_file():
+                found.append((float(info.get("eval_mean_return", -np.inf)), model))
+    return sorted(found, key=lambda item: item[0], reverse=True)
+
+
+def find_model(
+    log_folder: str | None,
+    algo: str | None,
+    env_id: str | None,
+    exp_id: int = 0,
+    load_best: bool = False,
+    load_checkpoint: int | None = None,
+    load_last_checkpoint: bool = False,
+) -> Path:
+    """The model file a user means, rl-baselines3-zoo style.
+
+    With no log folder: the best shipped policy, else the best model of the most
+    recent run under ``logs/``.
+    """
+    if log_folder is None:
+        shipped = pretrained_models()
+        if shipped and not (algo or env_id or load_checkpoint or load_last_checkpoint):
+            return shipped[0][1]
+        log_folder = "logs"
+        load_best = load_best or not (load_checkpoint or load_last_checkpoint)
+    root = Path(log_folder)
+    runs = []
+    for algo_name in [algo] if algo else list(ALGORITHMS):
+        if env_id:
+            runs += run_dirs(root, algo_name, env_id)
+        elif (root / algo_name).is_dir():
+            runs += [p for p in (root / algo_name).iterdir() if (p / "config.yml").is_file()]
+    if not runs:
+        raise UsageError(
+            f"no trained model found under {root}/ (train one with train.py, or pass --model)"
+        )
+    if exp_id:
+        name = f"{(env_id or '').split(':')[-1]}_{exp_id}"
+        matches = [r for r in runs if r.name == name]
+        if not matches:
+            raise UsageError(f"no run {name} under {root}/{algo or '*'}/")
+        run = matches[0]
+    else:
+        run = max(runs, key=lambda r: (r / "config.yml").stat().st_mtime)
+    if load_checkpoint is not None:
+        path = run / "checkpoints" / f"rl_model_{load_checkpoint}_steps.zip"
+    elif load_last_checkpoint:
+        found = checkpoints(run)
+        if not found:
+            raise UsageError(f"{run} has no checkpoint")
+        path = found[0][1]
+    elif load_best:
+        path = run / "best_model.zip"
+    else:
+        path = run / "final_model.zip"
+    if not path.is_file():
+        raise UsageError(f"model file not found: {path}")
+    return path
+
+
+def check_spaces(policy: LoadedPolicy, env: gym.Env) -> None:
+    model = policy.model
+    if model.observation_space.shape != env.observation_space.shape:
+        raise UsageError(
+            f"{policy.path.name} expects observations of shape {model.observation_space.shape}, "
+            f"the env gives {env.observation_space.shape}"
+        )
+    if model.action_space != env.action_space:
+        raise UsageError(
+            f"{policy.path.name} acts in {model.action_space}, the env needs {env.action_space}"
+        )
+
+
+def run_episodes(
+    policy: LoadedPolicy,
+    env: gym.Env,
+    episodes: int,
+    seed: int,
+    deterministic: bool = True,
+) -> list[dict[str, float]]:
+    """One record per episode: return, length, distance, speed, fall, reward terms."""
+    check_spaces(policy, env)
+    dt = float(getattr(env.unwrapped, "dt", 0.0) or 0.0)
+    records = []
+    for episode in range(episodes):
+        obs, info = env.reset(seed=seed + episode)
+        start = np.asarray(info.get("base_position", np.zeros(3)), dtype=float)
+        totals = dict.fromkeys(REWARD_TERMS, 0.0)
+        episode_return, length = 0.0, 0
+        terminated = truncated = False
+        while not (terminated or truncated):
+            obs, reward, terminated, truncated, info = env.step(
+                policy.act(obs, deterministic=deterministic)
+            )
+            episode_return += float(reward)
+            length += 1
+            for term in REWARD_TERMS:
+                totals[term] += float(info.get(term, 0.0))
+        record = {"return": episode_return, "length": float(length), "fell": float(terminated)}
+        if "base_position" in info:
+            distance = float(np.asarray(info["base_position"])[0] - start[0])
+            record["distance"] = distance
+            record["speed"] = distance / (length * dt) if dt else float("nan")
+            record.update(totals)
+        records.append(record)
+    return records
+
+
+def summarize(records: list[dict[str, float]]) -> dict[str, dict[str, float]]:
+    """mean, std, min, max of every statistic; ``fell`` also as a count."""
+    summary = {}
+    for key in records[0]:
+        values = np.array([r[key] for r in records])
+        summary[key] = {
+            "mean": float(values.mean()),
+            "std": float(values.std()),
+            "min": float(values.min()),
+            "max": float(values.max()),
+        }
+    summary["fell"]["count"] = float(sum(r["fell"] for r in records))
+    return summary
+
+
+LABELS = {
+    "return": "return",
+    "length": "episode length (steps)",
+    "distance": "forward distance (m)",
+    "speed": "average forward speed (m/s)",
+    "reward_forward": "reward: forward",
+    "reward_energy": "reward: energy",
+    "reward_drift": "reward: drift",
+    "reward_shake": "reward: shake",
+}
+
+
+def format_table(summary: dict[str, dict[str, float]], episodes: int) -> str:
+    rows = [f"{'statistic':<30}{'mean':>10}{'std':>10}{'min':>10}{'max':>10}"]
+    for key, label in LABELS.items():
+        if key in summary:
+            s = summary[key]
+            rows.append(
+                f"{label:<30}{s['mean']:>10.3f}{s['std']:>10.3f}{s['min']:>10.3f}{s['max']:>10.3f}"
+            )
+    rows.append(f"{'falls':<30}{int(summary['fell']['count']):>10d} of {episodes}")
+    return "\n".join(rows)
