@@ -52,6 +52,9 @@ def infer_algo(path: Path) -> str:
     for name in ALGORITHMS:
         if f".{name}." in module or module.endswith(f".{name}"):
             return name
+    # PPO and A2C share SB3's common ActorCriticPolicy; only PPO clips.
+    if module.endswith("common.policies"):
+        return "ppo" if "clip_range" in data else "a2c"
     raise UsageError(f"cannot tell the algorithm of {path} ({module!r}); pass --algo")
 
 
@@ -66,7 +69,8 @@ def _normalizer_for(model_path: Path) -> Path | None:
 
 
 def _run_config(model_path: Path) -> dict[str, Any]:
-    for folder in (model_path.parent, model_path.parents[1]):
+    model_path = model_path.resolve()
+    for folder in (model_path.parent, model_path.parent.parent):
         config = folder / "config.yml"
         if config.is_file():
             return yaml.safe_load(config.read_text()) or {}

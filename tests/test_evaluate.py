@@ -1,0 +1,142 @@
+"""evaluate.py end to end, in subprocesses, on a model trained for a few hundred steps."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from stable_baselines3 import PPO
+
+from minitaur_env.training.video import read_video
+from tests.scripts import TINY, error_lines, run_script
+
+SHORT = ["--env-kwargs", "max_episode_steps=30"]
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    root = tmp_path_factory.mktemp("evaluate")
+    result = run_script(
+        "train.py", "-n", "200", "--hyperparams", "learning_starts=50", "batch_size=32",
+        "--eval-freq", "100", "--eval-episodes", "1", "--save-freq", "100", *TINY, cwd=root,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    return root
+
+
+@pytest.fixture(scope="module")
+def best_model(workdir):
+    return workdir / "logs" / "sac" / "MinitaurBulletEnv-v0_1" / "best_model.zip"
+
+
+def test_statistics_table_and_json(workdir, best_model):
+    result = run_script(
+        "evaluate.py", "--model", str(best_model), "--episodes", "3", "--json", "out/stats.json",
+        *SHORT, cwd=workdir,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    for label in ("return", "episode length", "forward distance (m)", "speed (m/s)", "falls"):
+        assert label in result.stdout
+    stats = json.loads((workdir / "out" / "stats.json").read_text())
+    assert stats["algo"] == "sac" and stats["episodes"] == 3 and stats["deterministic"]
+    summary = stats["summary"]
+    episodes = stats["per_episode"]
+    assert len(episodes) == 3
+    for episode in episodes:
+        assert episode["length"] == 30 or episode["fell"] == 1.0
+        terms = sum(episode[k] for k in ("reward_forward", "reward_energy"))
+        terms += episode["reward_drift"] + episode["reward_shake"]
+        assert episode["return"] == pytest.approx(terms, abs=1e-9)
+        assert episode["speed"] == pytest.approx(episode["distance"] / (episode["length"] * 0.01))
+        assert abs(episode["distance"]) < 1.0  # 0.3 s of a barely trained policy
+    returns = [e["return"] for e in episodes]
+    assert summary["return"]["mean"] == pytest.approx(np.mean(returns))
+    assert summary["return"]["std"] == pytest.approx(np.std(returns))
+    assert f"{summary['return']['mean']:.3f}" in result.stdout
+
+
+def test_same_seed_same_statistics_and_stochastic_mode(workdir, best_model):
+    args = ["evaluate.py", "--model", str(best_model), "--episodes", "2", *SHORT]
+    first = run_script(*args, "--json", "a.json", cwd=workdir)
+    second = run_script(*args, "--json", "b.json", cwd=workdir)
+    stochastic = run_script(*args, "--stochastic", "--json", "c.json", cwd=workdir)
+    a, b, c = (json.loads((workdir / f"{n}.json").read_text()) for n in "abc")
+    assert first.returncode == second.returncode == stochastic.returncode == 0
+    assert a["per_episode"] == b["per_episode"]
+    assert not c["deterministic"] and c["per_episode"] != a["per_episode"]
+
+
+@pytest.mark.parametrize(
+    ("selection", "expected"),
+    [
+        (["--load-best"], "best_model.zip"),
+        (["--load-last-checkpoint"], "rl_model_200_steps.zip"),
+        (["--load-checkpoint", "100"], "rl_model_100_steps.zip"),
+        ([], "final_model.zip"),
+    ],
+)
+def test_zoo_style_model_selection(workdir, selection, expected):
+    result = run_script(
+        "evaluate.py", "-f", "logs", "--algo", "sac", "--env", "MinitaurBulletEnv-v0",
+        *selection, "--episodes", "1", *SHORT, cwd=workdir,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert f"{expected} (sac)" in result.stdout.splitlines()[0]
+
+
+def test_render_video_writes_mp4_and_gif(workdir, best_model):
+    result = run_script(
+        "evaluate.py", "--model", str(best_model), "--episodes", "0", "--render-video",
+        "-o", "clips/run.mp4", "--video-episodes", "2", "--width", "160", "--height", "120",
+        "--gif", "--env-kwargs", "max_episode_steps=20", cwd=workdir,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    frames, fps = read_video(workdir / "clips" / "run.mp4")
+    assert fps == 50  # every 2nd control step of 100 Hz: real time
+    assert frames.shape == (20, 120, 160, 3)  # 2 episodes x 20 steps / 2
+    assert frames.std() > 10
+    assert (workdir / "clips" / "run.gif").read_bytes().startswith(b"GIF8")
+    assert [p.name for p in (workdir / "clips").iterdir() if p.name.startswith(".")] == []
+
+
+def test_default_video_name_goes_to_videos(workdir, best_model):
+    result = run_script(
+        "evaluate.py", "--model", str(best_model), "--episodes", "0", "--render-video",
+        "--video-episodes", "1", "--width", "64", "--height", "48", *SHORT, cwd=workdir,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    videos = list((workdir / "videos").glob("MinitaurBulletEnv-v0_sac_*.mp4"))
+    assert len(videos) == 1
+
+
+def _make_cartpole_model(path):
+    PPO("MlpPolicy", "CartPole-v1", n_steps=16, batch_size=16, device="cpu").save(path)
+
+
+@pytest.mark.parametrize(
+    ("args", "message", "code"),
+    [
+        (["--model", "missing.zip"], "model file not found: missing.zip", 2),
+        (["--model", "corrupt.zip"], "is not a Stable-Baselines3 model file", 2),
+        (["--model", "cartpole.zip"], "expects observations of shape (4,)", 2),
+        (["--model", "{best}", "--env", "NoSuchEnv-v1"], "unknown env id 'NoSuchEnv-v1'", 2),
+        (["--model", "{best}", "--render-video", "-o", "a-file/x.mp4"], "cannot write to", 2),
+        (["--model", "{best}", "--json", "a-file/x.json"], "cannot write to", 2),
+        (["--model", "{best}", "--gui"], "DISPLAY", 1),
+        (["--frobnicate"], "unrecognized arguments: --frobnicate", 2),
+        (["-f", "empty-logs"], "no trained model found under empty-logs", 2),
+    ],
+)
+def test_user_errors_give_one_clear_line(workdir, best_model, tmp_path, args, message, code):
+    (tmp_path / "corrupt.zip").write_bytes(b"this is not a zip file")
+    (tmp_path / "a-file").write_text("")
+    _make_cartpole_model(tmp_path / "cartpole.zip")
+    args = [a.replace("{best}", str(best_model)) for a in args]
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    result = run_script("evaluate.py", *args, "--episodes", "1", *SHORT, cwd=tmp_path)
+    assert result.returncode == code, result.stdout + result.stderr
+    lines = error_lines(result)
+    assert len(lines) == 1, result.stderr
+    assert message in lines[0]
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before  # nothing half-written
