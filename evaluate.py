@@ -103,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
             ensure_writable(video_path.parent)
         if args.json is not None:
             ensure_writable(args.json.parent)
-        print(f"policy: {policy.path} ({policy.algo}) on {env_id}")
+        normalized = ", observations normalized" if policy.normalizer is not None else ""
+        print(f"policy: {policy.path} ({policy.algo}{normalized}) on {env_id}")
 
         results = None
         if args.episodes:

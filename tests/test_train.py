@@ -153,7 +153,7 @@ def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
 def test_generic_on_cartpole_with_ppo(tmp_path):
     result = run_script(
         "train.py", "--algo", "ppo", "--env", "CartPole-v1", "-n", "256",
-        "--hyperparams", "n_steps=64", "batch_size=32", "--n-envs", "2",
+        "--hyperparams", "n_steps=64", "batch_size=32", "normalize=true", "--n-envs", "2",
         "--eval-freq", "128", "--eval-episodes", "2", "--save-freq", "128", "-v", "0",
         cwd=tmp_path,
     )  # fmt: skip
@@ -164,6 +164,14 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
     with np.load(run / "evaluations.npz") as evaluations:
         assert len(evaluations["timesteps"]) == 2
     assert zipfile.is_zipfile(run / "checkpoints" / "rl_model_128_steps.zip")
+    # VecNormalize statistics travel with the final, best and checkpointed models.
+    assert (run / "final_model_vecnormalize.pkl").is_file()
+    assert (run / "best_model_vecnormalize.pkl").is_file()
+    assert (run / "checkpoints" / "rl_model_vecnormalize_128_steps.pkl").is_file()
+    evaluated = run_script("evaluate.py", "--model", str(run / "best_model.zip"),
+                           "--episodes", "2", "--json", "stats.json", cwd=tmp_path)  # fmt: skip
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert "normalized" in evaluated.stdout
 
 
 @pytest.mark.parametrize(

@@ -78,6 +78,8 @@ def make_eval_env(
         kwargs["render_mode"] = render_mode
     make_env(env_id, kwargs).close()
     env = make_vec_env(qualified_env_id(env_id), n_envs=1, seed=seed, env_kwargs=kwargs)
+    # The same wrapper stack as training, which SB3's normalization sync walks in step.
+    env = VecCheckNan(env, raise_exception=True)
     if normalize:
         env = VecNormalize(env, training=False, norm_reward=False)
     return env
