@@ -41,8 +41,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
     add("--seed", type=int, default=12345, help="seed of episode 0; episode i uses seed + i")
     mode = parser.add_mutually_exclusive_group()
-    mode.add_argument("--deterministic", dest="deterministic", action="store_true", default=True)
-    mode.add_argument("--stochastic", dest="deterministic", action="store_false")
+    mode.add_argument(
+        "--deterministic",
+        dest="deterministic",
+        action="store_true",
+        default=True,
+        help="act with the policy's mean action (default)",
+    )
+    mode.add_argument(
+        "--stochastic", dest="deterministic", action="store_false", help="sample actions"
+    )
     add("--json", type=Path, metavar="PATH", help="also write the statistics as JSON")
     add("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="keyword arguments for the env")
     add("--render-video", action="store_true", help="write an mp4 of --video-episodes episodes")

@@ -46,16 +46,19 @@ class MotorModel:
         self, targets: np.ndarray, angles: np.ndarray, velocities: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """(actual torque applied to the joints, torque the sensor observes)."""
+        # np.minimum/np.maximum: the same values as np.clip at a fraction of its cost on
+        # eight entries, and this runs five times per env step.
         pwm = -self.kp * (angles - targets) - self.kd * velocities
-        pwm = np.clip(pwm, -1.0, 1.0)
-        observed = np.clip(
-            TORQUE_CONSTANT * (pwm * self.voltage / RESISTANCE),
-            -OBSERVED_TORQUE_LIMIT,
+        pwm = np.minimum(np.maximum(pwm, -1.0), 1.0)
+        observed = np.minimum(
+            np.maximum(TORQUE_CONSTANT * (pwm * self.voltage / RESISTANCE), -OBSERVED_TORQUE_LIMIT),
             OBSERVED_TORQUE_LIMIT,
         )
-        net_voltage = np.clip(
-            pwm * self.voltage - (TORQUE_CONSTANT + self.viscous_damping) * velocities,
-            -VOLTAGE_CLIPPING,
+        net_voltage = np.minimum(
+            np.maximum(
+                pwm * self.voltage - (TORQUE_CONSTANT + self.viscous_damping) * velocities,
+                -VOLTAGE_CLIPPING,
+            ),
             VOLTAGE_CLIPPING,
         )
         current = net_voltage / RESISTANCE

@@ -58,17 +58,19 @@ CLASSIC_OBSERVATION_BOUND = np.concatenate(
 )
 
 
+_MOTOR_LEG = np.arange(NUM_MOTORS) // 2
+# (-1)**m for the left legs' motors, negated for the right legs' (m >= 4).
+_EXTENSION_SIGN = np.array([1.0, -1.0, 1.0, -1.0, -1.0, 1.0, -1.0, 1.0])
+
+
 def leg_model_to_motor_angles(action: np.ndarray) -> np.ndarray:
     """Motor angle targets from leg-model actions (``ConvertFromLegModel``).
 
     ``action[0:4]`` extends leg ``i`` (its two motors move apart), ``action[4:8]``
     swings it (both motors move together). Zero maps to 5*pi/8 for every motor.
     """
-    leg = np.arange(NUM_MOTORS) // 2
-    swing = -(math.pi / 4) * (action[4 + leg] + 1.5)
-    extension_sign = np.where(np.arange(NUM_MOTORS) % 2 == 0, 1.0, -1.0)
-    extension_sign[NUM_LEGS:] *= -1.0
-    extension = extension_sign * (math.pi / 4) * action[leg]
+    swing = -(math.pi / 4) * (action[NUM_LEGS + _MOTOR_LEG] + 1.5)
+    extension = _EXTENSION_SIGN * (math.pi / 4) * action[_MOTOR_LEG]
     return math.pi + swing + extension
 
 
@@ -173,7 +175,7 @@ class Minitaur:
         angles, velocities = self.motor_angles_velocities()
         if self.motor_velocity_limit < math.inf:
             reach = self.time_step * self.motor_velocity_limit
-            targets = np.clip(targets, angles - reach, angles + reach)
+            targets = np.minimum(np.maximum(targets, angles - reach), angles + reach)
         if self.motor_control == "accurate":
             torques, self.observed_torques = self.motor_model.torques(targets, angles, velocities)
             if self.overheat_protection:

@@ -370,3 +370,16 @@ def test_works_in_subproc_vec_env_built_from_the_id():
         obs, rewards, _, infos = vec.step(np.zeros((2, 8), np.float32))
     assert rewards.shape == (2,) and "x_velocity" in infos[0]
     vec.close()
+
+
+def test_fast_reset_starts_from_the_hard_reset_observation():
+    hard = MinitaurBulletEnv(randomize_dynamics=False)
+    fast = MinitaurBulletEnv(randomize_dynamics=False, hard_reset=False)
+    expected, _ = hard.reset(seed=0)
+    for seed in range(3):
+        obs, _ = fast.reset(seed=seed)
+        np.testing.assert_array_equal(obs, expected)
+        for _ in range(20):
+            fast.step(np.ones(8, np.float32))
+    hard.close()
+    fast.close()

@@ -151,6 +151,8 @@ def find_model(
             f"no trained model found under {root}/ (train one with train.py, or pass --model)"
         )
     if exp_id:
+        if not env_id:
+            raise UsageError("--exp-id needs --env to name the run")
         name = f"{(env_id or '').split(':')[-1]}_{exp_id}"
         matches = [r for r in runs if r.name == name]
         if not matches:

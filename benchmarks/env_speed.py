@@ -1,0 +1,204 @@
+"""Env throughput: step, reset, render and vectorized, against named baselines.
+
+Baselines, measured in this same run:
+- the physics-only bound: the time of the bare ``stepSimulation`` calls of each env step
+  (5 per step at the default settings), timed inside the very same rollout;
+- the classic ``pybullet_envs`` MinitaurBulletEnv from the pybullet wheel, when it can be
+  imported (it needs ``pip install gym==0.26.2 'setuptools<70'``);
+- one env in the main process, for the vectorized figure.
+
+    python benchmarks/env_speed.py [--steps 3000] [--video]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import sys
+import time
+import types
+
+import numpy as np
+
+from minitaur_env import MinitaurBulletEnv
+
+STEP_ATTEMPTS = 3
+
+
+def random_actions(n: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-1, 1, (n, 8)).astype(np.float32)
+
+
+def time_our_steps(steps: int) -> tuple[float, float]:
+    """(env steps/s, physics-only steps/s) from one rollout, physics timed inside it."""
+    env = MinitaurBulletEnv()
+    sim = env.sim
+    bare_step = sim.step
+    physics = 0.0
+
+    def timed_step() -> None:
+        nonlocal physics
+        start = time.perf_counter()
+        bare_step()
+        physics += time.perf_counter() - start
+
+    sim.step = timed_step  # instrument this instance only
+    actions = random_actions(steps)
+    env.reset(seed=0)
+    physics = 0.0
+    total = 0.0
+    for action in actions:
+        start = time.perf_counter()
+        _, _, terminated, _, _ = env.step(action)
+        total += time.perf_counter() - start
+        if terminated:
+            env.reset()
+    env.close()
+    return steps / total, steps / physics
+
+
+def load_classic_env_class():
+    """The classic env class from the pybullet wheel, or None with the reason."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("pybullet_envs")
+    if spec is None or not spec.submodule_search_locations:
+        return None, "pybullet_envs not found"
+    # pybullet_envs/__init__.py registers with the gym API of 2019 and fails today: load
+    # the package as a bare module so only the bullet submodule is executed.
+    package = types.ModuleType("pybullet_envs")
+    package.__path__ = list(spec.submodule_search_locations)
+    sys.modules.setdefault("pybullet_envs", package)
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            from pybullet_envs.bullet.minitaur_gym_env import MinitaurBulletEnv as Classic
+    except Exception as error:  # gym or pkg_resources missing
+        return None, f"{type(error).__name__}: {error} (pip install gym==0.26.2 'setuptools<70')"
+    return Classic, ""
+
+
+def time_classic_steps(classic, steps: int) -> float:
+    with contextlib.redirect_stdout(io.StringIO()):
+        env = classic()
+    env.reset()
+    actions = random_actions(steps)
+    total = 0.0
+    for action in actions:
+        start = time.perf_counter()
+        _, _, done, _ = env.step(action)
+        total += time.perf_counter() - start
+        if done:
+            env.reset()
+    return steps / total
+
+
+def time_resets(make, n: int) -> float:
+    """Mean ms per reset (after a first one that builds the world)."""
+    env = make()
+    env.reset()
+    start = time.perf_counter()
+    for _ in range(n):
+        env.reset()
+    elapsed = (time.perf_counter() - start) / n * 1000
+    return elapsed
+
+
+def time_render(width: int, height: int, frames: int = 30) -> float:
+    env = MinitaurBulletEnv(render_mode="rgb_array", width=width, height=height)
+    env.reset(seed=0)
+    env.render()
+    start = time.perf_counter()
+    for _ in range(frames):
+        env.step(np.zeros(8, np.float32))
+        env.render()
+    elapsed = (time.perf_counter() - start) / frames * 1000
+    env.close()
+    return elapsed
+
+
+def time_vectorized(n_envs: int, steps: int) -> float:
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    vec = make_vec_env(
+        "minitaur_env:MinitaurBulletEnv-v0", n_envs=n_envs, seed=0, vec_env_cls=SubprocVecEnv
+    )
+    vec.reset()
+    actions = random_actions(steps)
+    start = time.perf_counter()
+    for action in actions:
+        vec.step(np.tile(action, (n_envs, 1)))
+    elapsed = time.perf_counter() - start
+    vec.close()
+    return n_envs * steps / elapsed
+
+
+def time_video_episode() -> float:
+    from minitaur_env.training.video import record_video
+
+    env = MinitaurBulletEnv(render_mode="rgb_array")
+    with contextlib.suppress(FileNotFoundError):
+        os.remove("/tmp/minitaur-benchmark.mp4")
+    start = time.perf_counter()
+    record_video(env, lambda obs: np.zeros(8, np.float32), "/tmp/minitaur-benchmark.mp4", seed=0)
+    env.close()
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=3000, help="env steps per measurement")
+    parser.add_argument("--video", action="store_true", help="also time a 1000-step video")
+    args = parser.parse_args()
+    print(f"env speed, {args.steps} random-action steps per figure, pid {os.getpid()}")
+
+    ours, physics = max(
+        (time_our_steps(args.steps) for _ in range(STEP_ATTEMPTS)), key=lambda r: r[0]
+    )
+    print(
+        f"step: ours {ours:.0f} steps/s; physics-only bound {physics:.0f} steps/s; "
+        f"ratio {ours / physics:.2f} of the bound"
+    )
+    classic, reason = load_classic_env_class()
+    if classic is not None:
+        classic_rate = max(time_classic_steps(classic, args.steps) for _ in range(STEP_ATTEMPTS))
+        print(
+            f"step: classic env {classic_rate:.0f} steps/s; ours/classic {ours / classic_rate:.2f}x"
+        )
+    else:
+        print(f"step: classic env not measured ({reason})")
+
+    hard = time_resets(lambda: MinitaurBulletEnv(), 20)
+    fixed = time_resets(lambda: MinitaurBulletEnv(randomize_dynamics=False), 20)
+    restored = time_resets(
+        lambda: MinitaurBulletEnv(randomize_dynamics=False, hard_reset=False), 20
+    )
+    print(
+        f"reset: ours hard {hard:.1f} ms (randomized), {fixed:.1f} ms (fixed dynamics); "
+        f"hard_reset=False {restored:.2f} ms (fixed dynamics)"
+    )
+    if classic is not None:
+        with contextlib.redirect_stdout(io.StringIO()):
+            classic_reset = time_resets(lambda: classic(env_randomizer=None), 20)
+        print(
+            f"reset: classic hard {classic_reset:.1f} ms; ratios classic/ours: hard "
+            f"{classic_reset / fixed:.2f}x, hard_reset=False {classic_reset / restored:.0f}x"
+        )
+
+    for width, height in ((640, 480), (960, 720), (320, 240)):
+        print(f"render: {width}x{height} {time_render(width, height):.0f} ms/frame")
+
+    one = time_vectorized(1, args.steps // 2)
+    two = time_vectorized(2, args.steps // 2)
+    print(
+        f"vectorized: SubprocVecEnv 1 worker {one:.0f} steps/s, 2 workers {two:.0f} steps/s; "
+        f"ratio {two / one:.2f}x"
+    )
+    if args.video:
+        print(f"video: one 1000-step episode at 640x480, 50 fps: {time_video_episode():.1f} s")
+
+
+if __name__ == "__main__":
+    main()
