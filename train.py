@@ -270,6 +270,14 @@ def prepare_run(args: argparse.Namespace) -> tuple[dict[str, Any], Path, int | N
     config = resolve_config(args)
     from minitaur_env.training.envs import qualified_env_id
 
+    if config["tensorboard_log"]:
+        try:
+            import tensorboard  # noqa: F401
+        except ImportError as error:
+            raise UsageError(
+                "--tensorboard-log needs TensorBoard: pip install tensorboard"
+            ) from error
+
     qualified_env_id(config["env"])  # fail on an unknown id before creating folders
     algorithm_class(config["algo"])
     run_dir = new_run_dir(args.log_folder, config["algo"], config["env"])

@@ -14,10 +14,11 @@ TINY = ["--env-kwargs", "max_episode_steps=40", "-v", "0"]
 
 
 def run_script(
-    script: str, *args: str, cwd: Path, timeout: float = 300
+    script: str, *args: str, cwd: Path, timeout: float = 300, keep_display: bool = False
 ) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    env.pop("DISPLAY", None)
+    if not keep_display:
+        env.pop("DISPLAY", None)
     return subprocess.run(
         [sys.executable, str(REPO / script), *args],
         cwd=cwd,

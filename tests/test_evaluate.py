@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,6 +110,39 @@ def test_default_video_name_goes_to_videos(workdir, best_model):
     assert result.returncode == 0, result.stderr
     videos = list((workdir / "videos").glob("MinitaurBulletEnv-v0_sac_*.mp4"))
     assert len(videos) == 1
+
+
+def test_gui_mode_plays_episodes(workdir, best_model, display):
+    result = run_script(
+        "evaluate.py", "--model", str(best_model), "--episodes", "0", "--gui",
+        "--video-episodes", "1", "--env-kwargs", "max_episode_steps=10", cwd=workdir,
+        keep_display=True,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+
+
+def test_default_policy_is_the_best_shipped_one_else_the_latest_run(tmp_path, monkeypatch):
+    from minitaur_env.training import evaluation
+
+    shipped = tmp_path / "pretrained"
+    shipped.mkdir()
+    for name, score in (("sac_a", 3.5), ("ppo_b", 12.0), ("tqc_c", 7.0)):
+        (shipped / f"{name}.zip").write_bytes(b"")
+        (shipped / f"{name}.yml").write_text(f"eval_mean_return: {score}\n")
+    monkeypatch.setattr(evaluation, "PRETRAINED_DIR", shipped)
+    assert evaluation.find_model(None, None, None).name == "ppo_b.zip"
+
+    monkeypatch.setattr(evaluation, "PRETRAINED_DIR", tmp_path / "nothing-shipped")
+    monkeypatch.chdir(tmp_path)
+    for n in (1, 2):
+        run = tmp_path / "logs" / "sac" / f"MinitaurBulletEnv-v0_{n}"
+        run.mkdir(parents=True)
+        (run / "config.yml").write_text("algo: sac\n")
+        (run / "best_model.zip").write_bytes(b"")
+        time.sleep(0.05)  # the newest config.yml marks the latest run
+    assert evaluation.find_model(None, None, None) == Path(
+        "logs/sac/MinitaurBulletEnv-v0_2/best_model.zip"
+    )
 
 
 def _make_cartpole_model(path):

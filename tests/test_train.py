@@ -66,6 +66,17 @@ def test_default_run_leaves_everything_behind(tmp_path):
     assert "last eval" in result.stdout and "steps/s" in result.stdout
 
 
+def test_tensorboard_events_and_progress_bar(tmp_path):
+    result = run_script(
+        "train.py", "-n", "80", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0",
+        "--tensorboard-log", "tb", "--progress", *TINY, cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    events = list((tmp_path / "tb").rglob("events.out.tfevents.*"))
+    assert len(events) == 1 and events[0].stat().st_size > 0
+    assert "80/80" in result.stdout + result.stderr  # the progress bar reached the end
+
+
 def test_video_recording_does_not_change_training(tmp_path):
     common = ["-n", "150", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0", *TINY]
     plain = run_script("train.py", *common, cwd=tmp_path)

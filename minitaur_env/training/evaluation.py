@@ -107,8 +107,9 @@ def load_policy(model_path: Path, algo: str | None = None, device: str = "auto")
     )
 
 
-def pretrained_models(folder: Path = PRETRAINED_DIR) -> list[tuple[float, Path]]:
+def pretrained_models(folder: Path | None = None) -> list[tuple[float, Path]]:
     """(eval mean return, zip) of the shipped policies, best first."""
+    folder = PRETRAINED_DIR if folder is None else folder
     found = []
     if folder.is_dir():
         for provenance in folder.glob("*.yml"):
