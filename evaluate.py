@@ -111,8 +111,9 @@ def main(argv: list[str] | None = None) -> int:
             ensure_writable(video_path.parent)
         if args.json is not None:
             ensure_writable(args.json.parent)
-        normalized = ", observations normalized" if policy.normalizer is not None else ""
-        print(f"policy: {policy.path} ({policy.algo}{normalized}) on {env_id}")
+        details = [policy.algo] + (["sbx"] if policy.backend == "sbx" else [])
+        details += ["observations normalized"] if policy.normalizer is not None else []
+        print(f"policy: {policy.path} ({', '.join(details)}) on {env_id}")
 
         results = None
         if args.episodes:

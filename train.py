@@ -25,6 +25,7 @@ import yaml
 from minitaur_env.training import UsageError
 from minitaur_env.training.config import (
     ALGORITHMS,
+    BACKENDS,
     OFF_POLICY,
     RUN_KEYS,
     algorithm_class,
@@ -52,6 +53,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add = parser.add_argument
     add("--algo", default="sac", choices=list(ALGORITHMS), help="RL algorithm (default: sac)")
+    add(
+        "--backend",
+        default="sb3",
+        choices=list(BACKENDS),
+        help="sb3 (PyTorch) or sbx (SB3's JAX implementations: sac td3 ppo tqc crossq)",
+    )
     add("--env", default=DEFAULT_ENV, help=f"gymnasium env id (default: {DEFAULT_ENV})")
     add("-n", "--n-timesteps", type=int, help="env steps to train (default: from the config)")
     add("--seed", type=int, default=0, help="random seed of envs and networks (default: 0)")
@@ -101,6 +108,7 @@ def resolve_config(args: argparse.Namespace) -> dict[str, Any]:
         run["n_envs"] = args.n_envs
     return {
         "algo": args.algo,
+        "backend": args.backend,
         "env": args.env,
         "env_kwargs": parse_overrides(args.env_kwargs, "--env-kwargs"),
         "seed": args.seed,
@@ -126,7 +134,7 @@ def build(config: dict[str, Any], run_dir: Path, resume_from: int | None):
 
     from minitaur_env.training.envs import make_eval_env, make_training_env
 
-    algo_cls = algorithm_class(config["algo"])
+    algo_cls = algorithm_class(config["algo"], config.get("backend", "sb3"))
     seed = config["seed"] + (resume_from or 0)  # new episodes after a resume, same seed
     env = make_training_env(
         config["env"],
@@ -154,8 +162,11 @@ def build(config: dict[str, Any], run_dir: Path, resume_from: int | None):
         model_path = run_dir / "checkpoints" / f"rl_model_{resume_from}_steps.zip"
         model = algo_cls.load(model_path, env=env, device=config["device"])
         buffer = replay_buffer_path(run_dir, resume_from)
-        if config["algo"] in OFF_POLICY and buffer.exists():
-            model.load_replay_buffer(buffer)
+        if config["algo"] in OFF_POLICY:
+            if buffer.exists():
+                model.load_replay_buffer(buffer)
+            else:
+                print(f"no replay buffer saved at step {resume_from}: starting with an empty one")
         model.tensorboard_log = config["tensorboard_log"]
     else:
         try:
@@ -279,7 +290,7 @@ def prepare_run(args: argparse.Namespace) -> tuple[dict[str, Any], Path, int | N
             ) from error
 
     qualified_env_id(config["env"])  # fail on an unknown id before creating folders
-    algorithm_class(config["algo"])
+    algorithm_class(config["algo"], config["backend"])
     run_dir = new_run_dir(args.log_folder, config["algo"], config["env"])
     (run_dir / "config.yml").write_text(yaml.safe_dump(config, sort_keys=False))
     return config, run_dir, None

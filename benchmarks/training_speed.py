@@ -2,8 +2,10 @@
 
 Every variant trains SAC with the same algorithmic settings as SB3's defaults (batch 256,
 (256, 256) actor and critics, one gradient step per env step) and differs only in how
-the work is executed. Each is measured in this one process, one after the other, over the
-steps after `learning_starts` (the learning phase). Also prints the memory of a 1M
+the work is executed: torch threads, updates batched in time, or SBX (the JAX
+implementation of SAC by SB3's maintainers, ``pip install sbx-rl``). Each is measured in
+this one process, one after the other, over the learning phase (from 200 updates after
+``learning_starts``, so JAX's compilation is not counted). Also prints the memory of a 1M
 transition replay buffer.
 
     python benchmarks/training_speed.py [--steps 1500] [--warmup 300]
@@ -37,11 +39,18 @@ class _LearningPhaseTimer(BaseCallback):
         return True
 
 
-def measure(steps: int, warmup: int, threads: int, **sac_kwargs) -> float:
+def measure(steps: int, warmup: int, threads: int, backend: str = "sb3", **sac_kwargs) -> float:
+    """Env steps/s of the learning phase, timed from 200 updates in (after JIT warm-up)."""
     torch.set_num_threads(threads)
     env = gym.make("MinitaurBulletEnv-v0")
-    model = SAC("MlpPolicy", env, learning_starts=warmup, seed=0, device="cpu", **sac_kwargs)
-    timer = _LearningPhaseTimer(warmup + 1)
+    if backend == "sbx":
+        from sbx import SAC as algorithm
+
+        sac_kwargs.setdefault("policy_kwargs", {"net_arch": [256, 256]})
+    else:
+        algorithm = SAC
+    model = algorithm("MlpPolicy", env, learning_starts=warmup, seed=0, device="cpu", **sac_kwargs)
+    timer = _LearningPhaseTimer(warmup + 200)
     model.learn(total_timesteps=warmup + steps, callback=timer)
     elapsed = time.perf_counter() - timer.started
     env.close()
@@ -58,7 +67,7 @@ def replay_buffer_bytes(size: int = 1_000_000) -> int:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=1500, help="learning-phase steps")
+    parser.add_argument("--steps", type=int, default=2000, help="learning-phase steps")
     parser.add_argument("--warmup", type=int, default=300, help="random steps before learning")
     args = parser.parse_args()
     default_threads = torch.get_num_threads()
@@ -68,6 +77,10 @@ def main() -> None:
     variants = {
         "1 torch thread": dict(threads=1),
         "1 thread, 64 updates every 64 steps": dict(threads=1, train_freq=64, gradient_steps=64),
+        "SBX (JAX) SAC": dict(threads=default_threads, backend="sbx"),
+        "SBX (JAX) SAC, 8 updates every 8 steps": dict(
+            threads=default_threads, backend="sbx", train_freq=8, gradient_steps=8
+        ),
     }
     for name, settings in variants.items():
         rate = measure(args.steps, args.warmup, **settings)

@@ -52,6 +52,7 @@ def test_default_run_leaves_everything_behind(tmp_path):
         "rl_model_160_steps.zip",
         "rl_model_240_steps.zip",
         "rl_model_80_steps.zip",
+        "rl_model_replay_buffer_160_steps.pkl",
         "rl_model_replay_buffer_240_steps.pkl",
     ]
     assert (run / "monitor" / "0.monitor.csv").read_text().count("\n") > 2
@@ -75,6 +76,33 @@ def test_tensorboard_events_and_progress_bar(tmp_path):
     events = list((tmp_path / "tb").rglob("events.out.tfevents.*"))
     assert len(events) == 1 and events[0].stat().st_size > 0
     assert "80/80" in result.stdout + result.stderr  # the progress bar reached the end
+
+
+def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
+    sbx = pytest.importorskip("sbx")
+    args = ["--backend", "sbx", "-n", "200", *FAST_SAC, "--eval-freq", "100"]
+    result = run_script(
+        "train.py", *args, "--eval-episodes", "1", "--save-freq", "50", *TINY, cwd=tmp_path
+    )
+    assert result.returncode == 0, result.stderr
+    run = run_dir_of(tmp_path)
+    model = sbx.SAC.load(run / "best_model.zip")
+    action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
+    assert action.shape == (8,)
+    (run / "checkpoints" / "rl_model_200_steps.zip").unlink()  # as if killed before it
+    (run / "config.yml").write_text((run / "config.yml").read_text().replace("200", "250"))
+    resumed = run_script("train.py", "--resume", str(run), cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "for 100 steps (from 150)" in resumed.stdout
+    final = sbx.SAC.load(run / "final_model.zip")
+    assert final.num_timesteps == 250
+    final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_250_steps.pkl")
+    assert final.replay_buffer.size() == 149 + 99  # the 150-step buffer was resumed
+    evaluated = run_script(
+        "evaluate.py", "--model", str(run / "final_model.zip"), "--episodes", "1", cwd=tmp_path
+    )
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert "(sac, sbx)" in evaluated.stdout
 
 
 def test_video_recording_does_not_change_training(tmp_path):

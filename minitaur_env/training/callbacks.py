@@ -46,12 +46,28 @@ class DivergenceGuardCallback(BaseCallback):
         return True
 
     def check_weights(self) -> None:
+        for name, finite in _weights_finite(self.model.policy):
+            if not finite:
+                raise TrainingDiverged(
+                    f"weight {name} became non-finite at step {self.num_timesteps}"
+                )
+
+
+def _weights_finite(policy: Any) -> list[tuple[str, bool]]:
+    """(name, all finite) per weight tensor of a torch (SB3) or JAX (SBX) policy."""
+    if isinstance(policy, torch.nn.Module):
         with torch.no_grad():
-            for name, parameter in self.model.policy.named_parameters():
-                if not torch.isfinite(parameter).all():
-                    raise TrainingDiverged(
-                        f"weight {name} became non-finite at step {self.num_timesteps}"
-                    )
+            return [(n, bool(torch.isfinite(p).all())) for n, p in policy.named_parameters()]
+    import jax
+
+    found = []
+    for attribute, state in vars(policy).items():
+        params = getattr(state, "params", None)
+        if params is not None:
+            for path, leaf in jax.tree_util.tree_leaves_with_path(params):
+                name = f"{attribute}{jax.tree_util.keystr(path)}"
+                found.append((name, bool(np.isfinite(np.asarray(leaf)).all())))
+    return found
 
 
 class VideoRecorderCallback(BaseCallback):
@@ -127,20 +143,25 @@ class VideoRecorderCallback(BaseCallback):
 
 
 class LeanCheckpointCallback(CheckpointCallback):
-    """SB3's CheckpointCallback that keeps only the newest replay buffer.
+    """SB3's CheckpointCallback that keeps only the two newest replay buffers.
 
     Model zips are small and all kept; a replay buffer of 1M transitions is hundreds
-    of MB, and only the newest is needed to resume.
+    of MB. Two are kept so that a resume still finds the buffer matching the previous
+    checkpoint when a kill tore the newest one.
     """
+
+    keep_buffers = 2
 
     def _on_step(self) -> bool:
         saved = self.n_calls % self.save_freq == 0
         result = super()._on_step()
         if saved and self.save_replay_buffer:
-            newest = Path(self._checkpoint_path("replay_buffer_", extension="pkl"))
-            for old in Path(self.save_path).glob(f"{self.name_prefix}_replay_buffer_*_steps.pkl"):
-                if old != newest:
-                    old.unlink(missing_ok=True)
+            pattern = f"{self.name_prefix}_replay_buffer_*_steps.pkl"
+            buffers = sorted(
+                Path(self.save_path).glob(pattern), key=lambda p: int(p.stem.split("_")[-2])
+            )
+            for old in buffers[: -self.keep_buffers]:
+                old.unlink(missing_ok=True)
         return result
 
 

@@ -17,6 +17,10 @@ try:
 except ImportError:  # sb3-contrib is a dependency, but keep SB3's own algorithms usable
     TQC = CrossQ = None
 
+BACKENDS = ("sb3", "sbx")
+# The JAX implementations of the same algorithms by SB3's maintainers (pip install sbx-rl).
+SBX_ALGORITHMS = ("sac", "td3", "ppo", "tqc", "crossq")
+
 ALGORITHMS: dict[str, type[BaseAlgorithm] | None] = {
     "sac": SAC,
     "td3": TD3,
@@ -31,12 +35,22 @@ OFF_POLICY = {"sac", "td3", "tqc", "crossq"}
 RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "policy")
 
 
-def algorithm_class(name: str) -> type[BaseAlgorithm]:
-    cls = ALGORITHMS.get(name)
-    if cls is None:
-        if name in ALGORITHMS:
-            raise UsageError(f"--algo {name} needs sb3-contrib: pip install sb3-contrib")
+def algorithm_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
+    if backend not in BACKENDS:
+        raise UsageError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
+    if name not in ALGORITHMS:
         raise UsageError(f"unknown algorithm {name!r}; choose from {', '.join(ALGORITHMS)}")
+    if backend == "sbx":
+        if name not in SBX_ALGORITHMS:
+            raise UsageError(f"--backend sbx has no {name}; it has {', '.join(SBX_ALGORITHMS)}")
+        try:
+            import sbx
+        except ImportError as error:
+            raise UsageError("--backend sbx needs SBX: pip install 'minitaur-env[sbx]'") from error
+        return getattr(sbx, {"crossq": "CrossQ"}.get(name, name.upper()))
+    cls = ALGORITHMS[name]
+    if cls is None:
+        raise UsageError(f"--algo {name} needs sb3-contrib: pip install sb3-contrib")
     return cls
 
 

@@ -29,6 +29,7 @@ class LoadedPolicy:
 
     model: BaseAlgorithm
     algo: str
+    backend: str
     path: Path
     env_id: str | None
     env_kwargs: dict[str, Any]
@@ -41,20 +42,21 @@ class LoadedPolicy:
         return action
 
 
-def infer_algo(path: Path) -> str:
-    """The algorithm of an SB3 zip, from the module of its saved policy class."""
+def infer_algo(path: Path) -> tuple[str, str]:
+    """(algorithm, backend) of an SB3/SBX zip, from the module of its saved policy class."""
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data"))
     except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, OSError) as error:
         raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
     module = str(data.get("policy_class", {}).get("__module__", ""))
+    backend = "sbx" if module.startswith("sbx.") else "sb3"
     for name in ALGORITHMS:
         if f".{name}." in module or module.endswith(f".{name}"):
-            return name
+            return name, backend
     # PPO and A2C share SB3's common ActorCriticPolicy; only PPO clips.
     if module.endswith("common.policies"):
-        return "ppo" if "clip_range" in data else "a2c"
+        return ("ppo" if "clip_range" in data else "a2c"), backend
     raise UsageError(f"cannot tell the algorithm of {path} ({module!r}); pass --algo")
 
 
@@ -84,8 +86,10 @@ def load_policy(model_path: Path, algo: str | None = None, device: str = "auto")
     if not model_path.is_file():
         raise UsageError(f"model file not found: {model_path}")
     config = _run_config(model_path)
-    algo = algo or config.get("algo") or infer_algo(model_path)
-    cls = algorithm_class(algo)
+    inferred_algo, backend = infer_algo(model_path)
+    algo = algo or config.get("algo") or inferred_algo
+    backend = config.get("backend", backend)
+    cls = algorithm_class(algo, backend)
     try:
         model = cls.load(model_path, device=device)
     except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
@@ -100,6 +104,7 @@ def load_policy(model_path: Path, algo: str | None = None, device: str = "auto")
     return LoadedPolicy(
         model=model,
         algo=algo,
+        backend=backend,
         path=model_path,
         env_id=config.get("env"),
         env_kwargs=dict(config.get("env_kwargs") or {}),
