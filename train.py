@@ -155,7 +155,7 @@ def build(config: dict[str, Any], run_dir: Path, resume_from: int | None):
             env = VecNormalize(env, gamma=gamma, **options)
     eval_env = make_eval_env(
         config["env"], seed=config["seed"] + 10_000, env_kwargs=config["env_kwargs"],
-        normalize=bool(normalize),
+        normalize=normalize,
     )  # fmt: skip
 
     if resume_from is not None:

@@ -239,3 +239,14 @@ def test_user_errors_give_one_clear_line(tmp_path, args, message):
     assert not (tmp_path / "logs" / "sac").exists() or not any(
         (tmp_path / "logs" / "sac").iterdir()
     )
+
+
+def test_eval_env_normalizes_observations_as_training_does():
+    from minitaur_env.training.envs import make_eval_env
+
+    reward_only = make_eval_env("CartPole-v1", seed=0, normalize={"norm_obs": False})
+    assert not reward_only.norm_obs and not reward_only.norm_reward and not reward_only.training
+    both = make_eval_env("CartPole-v1", seed=0, normalize=True)
+    assert both.norm_obs and not both.norm_reward
+    reward_only.close()
+    both.close()

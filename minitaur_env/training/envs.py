@@ -69,10 +69,14 @@ def make_eval_env(
     env_id: str,
     seed: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
-    normalize: bool = False,
+    normalize: bool | dict[str, Any] = False,
     render_mode: str | None = None,
 ) -> VecEnv:
-    """One monitored env; with ``normalize`` a frozen VecNormalize that reports raw rewards."""
+    """One monitored env; with ``normalize`` a frozen VecNormalize that reports raw rewards.
+
+    ``normalize`` may be the training VecNormalize's options (``norm_obs`` ...), so that
+    observations are treated exactly as in training.
+    """
     kwargs = dict(env_kwargs or {})
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
@@ -81,7 +85,9 @@ def make_eval_env(
     # The same wrapper stack as training, which SB3's normalization sync walks in step.
     env = VecCheckNan(env, raise_exception=True)
     if normalize:
-        env = VecNormalize(env, training=False, norm_reward=False)
+        options = dict(normalize) if isinstance(normalize, dict) else {}
+        options.update(training=False, norm_reward=False)
+        env = VecNormalize(env, **options)
     return env
 
 
