@@ -12,21 +12,18 @@ import sys
 import time
 from datetime import datetime
 from pathlib import Path
-from typing import NoReturn
 
 from minitaur_env.training import UsageError
+from minitaur_env.training.cli import OneLineErrorParser
 from minitaur_env.training.config import ALGORITHMS
 
 DEFAULT_ENV = "MinitaurBulletEnv-v0"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineErrorParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     add = parser.add_argument
     which = parser.add_argument_group("which policy")
     which.add_argument("--model", type=Path, help="a model .zip (overrides the options below)")

@@ -17,12 +17,13 @@ import sys
 import time
 import zipfile
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
 import yaml
 
 from minitaur_env.training import UsageError
+from minitaur_env.training.cli import OneLineErrorParser
 from minitaur_env.training.config import (
     ALGORITHMS,
     BACKENDS,
@@ -44,13 +45,10 @@ from minitaur_env.training.runs import (
 DEFAULT_ENV = "MinitaurBulletEnv-v0"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineErrorParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     add = parser.add_argument
     add("--algo", default="sac", choices=list(ALGORITHMS), help="RL algorithm (default: sac)")
     add(

@@ -46,10 +46,6 @@ class BulletSim:
             pybullet.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0, physicsClientId=self._id)
 
     # -- lifetime -----------------------------------------------------------
-    @property
-    def connected(self) -> bool:
-        return self._id >= 0 and pybullet.isConnected(physicsClientId=self._id)
-
     def close(self) -> None:
         """Disconnect the client; calling it again does nothing."""
         if self._id >= 0:

@@ -383,3 +383,40 @@ def test_fast_reset_starts_from_the_hard_reset_observation():
             fast.step(np.ones(8, np.float32))
     hard.close()
     fast.close()
+
+
+@pytest.mark.parametrize("motor_control", ["accurate", "pd", "position"])
+def test_every_motor_control_mode_stands_and_moves(motor_control):
+    env = MinitaurBulletEnv(motor_control=motor_control, randomize_dynamics=False)
+    obs, _ = env.reset(seed=0)
+    for _ in range(50):
+        obs, _, terminated, _, _ = env.step(np.zeros(8, np.float32))
+        assert not terminated and env.observation_space.contains(obs)
+    # Zero action means 5*pi/8 on every motor: each mode must get there from pi/2.
+    np.testing.assert_allclose(obs[:8], 5 * np.pi / 8, atol=0.15)
+    env.close()
+
+
+def test_action_repeat_holds_each_action_longer():
+    env = MinitaurBulletEnv(action_repeat=3, randomize_dynamics=False)
+    env.reset(seed=0)
+    assert env.dt == pytest.approx(0.03)
+    _, _, _, _, info = env.step(np.full(8, 0.5, np.float32))
+    single = MinitaurBulletEnv(randomize_dynamics=False)
+    single.reset(seed=0)
+    for _ in range(3):
+        _, _, _, _, single_info = single.step(np.full(8, 0.5, np.float32))
+    np.testing.assert_allclose(info["base_position"], single_info["base_position"], atol=1e-9)
+    env.close()
+    single.close()
+
+
+def test_on_rack_holds_the_base_in_the_air():
+    env = MinitaurBulletEnv(on_rack=True, randomize_dynamics=False)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        _, _, terminated, _, info = env.step(rng.uniform(-1, 1, 8).astype(np.float32))
+        assert not terminated
+    assert info["base_position"][2] > 0.5
+    env.close()
