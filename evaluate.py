@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.json is not None:
             ensure_writable(args.json.parent)
         details = [policy.algo] + (["sbx"] if policy.backend == "sbx" else [])
-        details += ["observations normalized"] if policy.normalizer is not None else []
+        if policy.normalizer is not None and policy.normalizer.norm_obs:
+            details.append("observations normalized")
         print(f"policy: {policy.path} ({', '.join(details)}) on {env_id}")
 
         results = None

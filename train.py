@@ -31,6 +31,7 @@ from minitaur_env.training.config import (
     RUN_KEYS,
     algorithm_class,
     load_hyperparams,
+    load_model,
     parse_overrides,
 )
 from minitaur_env.training.runs import (
@@ -74,6 +75,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--num-threads", type=int, default=0, help="torch CPU threads; 0: torch's default")
     add("--conf-file", default=None, help="YAML hyperparameter file (default: the packaged one)")
     add(
+        "--config",
+        metavar="ENTRY",
+        help="a named entry of the hyperparameter file instead of the env's, e.g. tutorial",
+    )
+    add(
         "--hyperparams",
         nargs="+",
         metavar="KEY=VALUE",
@@ -97,7 +103,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def resolve_config(args: argparse.Namespace) -> dict[str, Any]:
     """Everything a run depends on, in one dict (written to config.yml)."""
-    hyperparams = load_hyperparams(args.algo, args.env, args.conf_file)
+    hyperparams = load_hyperparams(args.algo, args.env, args.conf_file, args.config)
     hyperparams.update(parse_overrides(args.hyperparams, "--hyperparams"))
     run = {key: hyperparams.pop(key) for key in RUN_KEYS if key in hyperparams}
     if args.n_timesteps is not None:
@@ -106,6 +112,7 @@ def resolve_config(args: argparse.Namespace) -> dict[str, Any]:
         run["n_envs"] = args.n_envs
     return {
         "algo": args.algo,
+        "config": args.config or args.env,
         "backend": args.backend,
         "env": args.env,
         "env_kwargs": parse_overrides(args.env_kwargs, "--env-kwargs"),
@@ -158,7 +165,7 @@ def build(config: dict[str, Any], run_dir: Path, resume_from: int | None):
 
     if resume_from is not None:
         model_path = run_dir / "checkpoints" / f"rl_model_{resume_from}_steps.zip"
-        model = algo_cls.load(model_path, env=env, device=config["device"])
+        model = load_model(algo_cls, model_path, env=env, device=config["device"])
         buffer = replay_buffer_path(run_dir, resume_from)
         if config["algo"] in OFF_POLICY:
             if buffer.exists():

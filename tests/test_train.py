@@ -11,10 +11,15 @@ import pytest
 import yaml
 from stable_baselines3 import PPO, SAC
 
+from minitaur_env.training import UsageError
+from minitaur_env.training.config import load_model
 from minitaur_env.training.video import read_video
 from tests.scripts import TINY, error_lines, run_script, start_script
 
-FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
+FAST_SAC = [
+    "--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32",
+    "train_freq=1", "gradient_steps=1",
+]  # fmt: skip
 
 
 def run_dir_of(root, algo="sac", env="MinitaurBulletEnv-v0", n=1):
@@ -35,6 +40,8 @@ def test_default_run_leaves_everything_behind(tmp_path):
     assert config["algo"] == "sac" and config["n_timesteps"] == 240
     assert config["hyperparams"]["policy_kwargs"] == {"net_arch": [256, 256]}
     assert config["hyperparams"]["learning_starts"] == 50
+    assert config["hyperparams"]["n_steps"] == 5  # the tuned Minitaur entry
+    assert config["normalize"] == {"norm_obs": False, "norm_reward": True}
     assert "train.py" in (run / "command.txt").read_text()
 
     with np.load(run / "evaluations.npz") as evaluations:
@@ -42,10 +49,10 @@ def test_default_run_leaves_everything_behind(tmp_path):
         assert evaluations["results"].shape == (2, 2)
         np.testing.assert_array_equal(evaluations["ep_lengths"], 40)
 
-    model = SAC.load(run / "best_model.zip", device="cpu")
+    model = load_model(SAC, run / "best_model.zip")
     action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
     assert action.shape == (8,) and np.all(np.abs(action) <= 1)
-    assert SAC.load(run / "final_model.zip", device="cpu").num_timesteps == 240
+    assert load_model(SAC, run / "final_model.zip").num_timesteps == 240
 
     checkpoints = sorted(p.name for p in (run / "checkpoints").iterdir())
     assert checkpoints == [
@@ -54,6 +61,9 @@ def test_default_run_leaves_everything_behind(tmp_path):
         "rl_model_80_steps.zip",
         "rl_model_replay_buffer_160_steps.pkl",
         "rl_model_replay_buffer_240_steps.pkl",
+        "rl_model_vecnormalize_160_steps.pkl",
+        "rl_model_vecnormalize_240_steps.pkl",
+        "rl_model_vecnormalize_80_steps.pkl",
     ]
     assert (run / "monitor" / "0.monitor.csv").read_text().count("\n") > 2
     assert "train/critic_loss" in (run / "progress.csv").read_text()
@@ -86,7 +96,7 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     )
     assert result.returncode == 0, result.stderr
     run = run_dir_of(tmp_path)
-    model = sbx.SAC.load(run / "best_model.zip")
+    model = load_model(sbx.SAC, run / "best_model.zip")
     action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
     assert action.shape == (8,)
     (run / "checkpoints" / "rl_model_200_steps.zip").unlink()  # as if killed before it
@@ -94,7 +104,7 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     resumed = run_script("train.py", "--resume", str(run), cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
     assert "for 100 steps (from 150)" in resumed.stdout
-    final = sbx.SAC.load(run / "final_model.zip")
+    final = load_model(sbx.SAC, run / "final_model.zip")
     assert final.num_timesteps == 250
     final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_250_steps.pkl")
     assert final.replay_buffer.size() == 149 + 99  # the 150-step buffer was resumed
@@ -112,8 +122,8 @@ def test_video_recording_does_not_change_training(tmp_path):
         "train.py", *common, "--video-freq", "60", "--video-length", "10", cwd=tmp_path
     )
     assert plain.returncode == 0 and filmed.returncode == 0, filmed.stderr
-    a = SAC.load(run_dir_of(tmp_path, n=1) / "final_model.zip", device="cpu")
-    b = SAC.load(run_dir_of(tmp_path, n=2) / "final_model.zip", device="cpu")
+    a = load_model(SAC, run_dir_of(tmp_path, n=1) / "final_model.zip")
+    b = load_model(SAC, run_dir_of(tmp_path, n=2) / "final_model.zip")
     assert len(list((run_dir_of(tmp_path, n=2) / "videos").glob("*.mp4"))) == 2
     for (name, pa), (_, pb) in zip(
         a.policy.state_dict().items(), b.policy.state_dict().items(), strict=True
@@ -148,7 +158,7 @@ def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
     assert "(from " in result.stdout
     resumed_from = int(result.stdout.split("(from ")[1].split(")")[0])
     assert resumed_from >= saved - 100  # loses at most --save-freq steps
-    final = SAC.load(run / "final_model.zip", device="cpu")
+    final = load_model(SAC, run / "final_model.zip")
     assert final.num_timesteps == 600
     final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_600_steps.pkl")
     # The pre-kill transitions were kept. SB3 checkpoints a step before storing its
@@ -170,7 +180,9 @@ def test_ctrl_c_saves_model_and_replay_buffer(tmp_path):
     steps = int(stderr.split("rl_model_")[1].split("_steps")[0])
     assert steps > 100
     assert (run / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.pkl").exists()
-    assert SAC.load(run / "checkpoints" / f"rl_model_{steps}_steps.zip").num_timesteps == steps
+    assert (
+        load_model(SAC, run / "checkpoints" / f"rl_model_{steps}_steps.zip").num_timesteps == steps
+    )
 
 
 def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
@@ -183,7 +195,7 @@ def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
     assert len(lines) == 1 and "training diverged" in lines[0]
     assert "last good checkpoint" in lines[0]
     for checkpoint in (run_dir_of(tmp_path) / "checkpoints").glob("rl_model_*_steps.zip"):
-        model = SAC.load(checkpoint, device="cpu")
+        model = load_model(SAC, checkpoint)
         for parameter in model.policy.parameters():
             assert parameter.isfinite().all(), checkpoint.name
     assert not (run_dir_of(tmp_path) / "final_model.zip").exists()
@@ -210,7 +222,7 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
     evaluated = run_script("evaluate.py", "--model", str(run / "best_model.zip"),
                            "--episodes", "2", "--json", "stats.json", cwd=tmp_path)  # fmt: skip
     assert evaluated.returncode == 0, evaluated.stderr
-    assert "normalized" in evaluated.stdout
+    assert "observations normalized" in evaluated.stdout
 
 
 @pytest.mark.parametrize(
@@ -250,3 +262,17 @@ def test_eval_env_normalizes_observations_as_training_does():
     assert both.norm_obs and not both.norm_reward
     reward_only.close()
     both.close()
+
+
+def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
+    from minitaur_env.training.config import load_hyperparams
+
+    tuned = load_hyperparams("sac", "MinitaurBulletEnv-v0")
+    tutorial = load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="tutorial")
+    assert tutorial["buffer_size"] == 10_000 and "n_steps" not in tutorial
+    assert tuned["buffer_size"] == 100_000 and tuned["n_steps"] == 5
+    assert tuned["policy_kwargs"] == tutorial["policy_kwargs"]  # inherited through `base`
+    assert load_hyperparams("sac", "minitaur_env:MinitaurBullet-v0") == tuned
+    assert load_hyperparams("sac", "Pendulum-v1") == {"n_timesteps": 100000, "policy": "MlpPolicy"}
+    with pytest.raises(UsageError, match="no entry 'nope'"):
+        load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="nope")

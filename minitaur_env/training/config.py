@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -54,14 +55,29 @@ def algorithm_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
     return cls
 
 
+def load_model(cls: type[BaseAlgorithm], path: Path, **kwargs: Any) -> BaseAlgorithm:
+    """``cls.load``, without SB3's false alarm about n-step returns on reload.
+
+    A model saved with ``n_steps > 1`` stores ``NStepReplayBuffer`` with its n-step
+    kwargs; reloading it warns that ``n_steps`` is ignored although the saved kwargs
+    keep the n-step returns.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
+        return cls.load(path, **kwargs)
+
+
 def hyperparams_file(algo: str) -> Path:
     return Path(str(resources.files("minitaur_env") / "hyperparams" / f"{algo}.yml"))
 
 
-def load_hyperparams(algo: str, env_id: str, conf_file: str | None = None) -> dict[str, Any]:
+def load_hyperparams(
+    algo: str, env_id: str, conf_file: str | None = None, entry: str | None = None
+) -> dict[str, Any]:
     """The entry for ``env_id`` (or ``default``) of the algorithm's YAML file.
 
-    An entry may name another with ``base: <key>`` to start from it.
+    ``entry`` picks a named entry instead (e.g. ``tutorial``). An entry may name another
+    with ``base: <key>`` to start from it.
     """
     path = Path(conf_file) if conf_file else hyperparams_file(algo)
     try:
@@ -72,6 +88,11 @@ def load_hyperparams(algo: str, env_id: str, conf_file: str | None = None) -> di
         raise UsageError(f"hyperparameter file {path} is not valid YAML: {error}") from error
     if not isinstance(table, dict):
         raise UsageError(f"hyperparameter file {path} must map env ids to settings")
+    if entry is not None:
+        if entry not in table:
+            names = ", ".join(k for k in table if isinstance(table[k], dict) or table[k] is None)
+            raise UsageError(f"{path} has no entry {entry!r}; it has: {names}")
+        return _resolve(table, entry, path)
     bare_id = env_id.split(":")[-1]
     key = bare_id if bare_id in table else "default"
     if key not in table:

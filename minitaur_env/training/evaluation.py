@@ -16,7 +16,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
 from minitaur_env.training import UsageError
-from minitaur_env.training.config import ALGORITHMS, algorithm_class
+from minitaur_env.training.config import ALGORITHMS, algorithm_class, load_model
 from minitaur_env.training.runs import checkpoints, run_dirs, vecnormalize_path
 
 REWARD_TERMS = ("reward_forward", "reward_energy", "reward_drift", "reward_shake")
@@ -91,7 +91,7 @@ def load_policy(model_path: Path, algo: str | None = None, device: str = "auto")
     backend = config.get("backend", backend)
     cls = algorithm_class(algo, backend)
     try:
-        model = cls.load(model_path, device=device)
+        model = load_model(cls, model_path, device=device)
     except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
         raise UsageError(f"cannot load {model_path} as a {algo} model: {error}") from error
     stats = _normalizer_for(model_path)
