@@ -130,11 +130,13 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``motor_overheat_protection`` (True), ``motor_velocity_limit`` (inf rad/s).
     - ``action_repeat`` (1): control steps of 0.01 s each action is held for.
     - ``self_collision`` (True), ``on_rack`` (False: True holds the base in the air).
-    - ``hard_reset`` (True): rebuild the world at every reset (about 40 ms).
-      False restores a saved start state instead (under 0.1 ms with fixed
-      dynamics): the same first observation, but PyBullet's contact solver keeps
-      warm-start data from the previous episode, so what follows depends on that
-      episode and is not reproducible from the seed alone.
+    - ``hard_reset`` (True): rebuild the world at every reset (about 40 ms), as
+      the classic env does. False builds it once and restores a saved state
+      (under 0.1 ms with fixed dynamics; with randomized dynamics the robot must
+      still settle on its new masses). Both are reproducible from the seed, and
+      with fixed dynamics both give the same first observation; a fast reset then
+      solves contacts in a sorted order, so its steps are not bit-identical to the
+      classic env's (the parity tests use hard resets).
     - ``width``, ``height`` (640, 480), ``camera_distance`` (1.0 m),
       ``camera_yaw`` (0 deg), ``camera_pitch`` (-30 deg): the rgb_array camera.
     - ``urdf_root``: folder with ``plane.urdf`` and ``quadruped/minitaur.urdf``
@@ -280,8 +282,12 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             on_rack=self.on_rack,
             urdf_root=self.urdf_root,
         )
-        self._start_state = None if self.hard_reset else sim.save_state()
+        self._start_state = None
         self._settled_state = None
+        if not self.hard_reset and self.randomize_dynamics:
+            # Every episode restores this unsettled state and settles from it.
+            sim.sort_contact_pairs()
+            self._start_state = sim.save_state()
 
     @property
     def sim(self) -> BulletSim:
@@ -306,9 +312,9 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         sim = self._live_sim()
-        if self._robot is None or self._start_state is None:
+        if self._robot is None or self.hard_reset:
             self._build_world()
-        else:
+        elif self._start_state is not None:
             sim.restore_state(self._start_state)
         robot = self._robot
         assert robot is not None
@@ -320,14 +326,18 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             apply_dynamics(robot, dynamics)
             info["dynamics"] = dynamics
             self._settle(robot)
-        elif self._settled_state is not None:
+        elif self.hard_reset:
+            self._settle(robot)
+        else:
+            if self._settled_state is None:
+                # Settle exactly as a hard reset does, so the first observation is
+                # the classic one; sort contacts only for what follows.
+                self._settle(robot)
+                self._settled_state = (sim.save_state(), robot.observed_torques.copy())
+                sim.sort_contact_pairs()
             state, torques = self._settled_state
             sim.restore_state(state)
             robot.observed_torques = torques.copy()
-        else:
-            self._settle(robot)
-            if not self.hard_reset:
-                self._settled_state = (sim.save_state(), robot.observed_torques.copy())
 
         if sim.gui:
             sim.follow_with_gui_camera(

@@ -97,6 +97,19 @@ class BulletSim:
     def step(self) -> None:
         pybullet.stepSimulation(physicsClientId=self._id)
 
+    def sort_contact_pairs(self) -> None:
+        """Process contact pairs in a canonical order from now on.
+
+        By default Bullet solves contacts in the order their pairs were found, which
+        depends on everything simulated since the world was built; a restored state
+        then evolves differently after every episode. Sorting the pairs makes a
+        restored state evolve the same way every time (but in a different order
+        from the classic env, which never sorts).
+        """
+        pybullet.setPhysicsEngineParameter(
+            deterministicOverlappingPairs=1, physicsClientId=self._id
+        )
+
     def save_state(self) -> int:
         return pybullet.saveState(physicsClientId=self._id)
 

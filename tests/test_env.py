@@ -385,6 +385,31 @@ def test_fast_reset_starts_from_the_hard_reset_observation():
     fast.close()
 
 
+def _rollout(env: MinitaurBulletEnv, seed: int, actions: np.ndarray) -> np.ndarray:
+    observations = [env.reset(seed=seed)[0]]
+    for action in actions:
+        obs, _, terminated, _, _ = env.step(action)
+        observations.append(obs)
+        if terminated:
+            break
+    return np.array(observations)
+
+
+@pytest.mark.parametrize("randomize", [False, True])
+def test_fast_reset_is_reproducible_whatever_came_before(randomize):
+    actions = np.random.default_rng(0).uniform(-1, 1, (150, 8)).astype(np.float32)
+    other = np.random.default_rng(1).uniform(-1, 1, (150, 8)).astype(np.float32)
+    fresh = MinitaurBulletEnv(randomize_dynamics=randomize, hard_reset=False)
+    expected = _rollout(fresh, 7, actions)
+    fresh.close()
+
+    env = MinitaurBulletEnv(randomize_dynamics=randomize, hard_reset=False)
+    for history_seed in (1, 2):
+        _rollout(env, history_seed, other[: 50 * history_seed])
+        np.testing.assert_array_equal(_rollout(env, 7, actions), expected)
+    env.close()
+
+
 @pytest.mark.parametrize("motor_control", ["accurate", "pd", "position"])
 def test_every_motor_control_mode_stands_and_moves(motor_control):
     env = MinitaurBulletEnv(motor_control=motor_control, randomize_dynamics=False)
