@@ -29,6 +29,7 @@ from minitaur_env.training.config import (
     BACKENDS,
     OFF_POLICY,
     RUN_KEYS,
+    VEC_ENVS,
     algorithm_class,
     load_hyperparams,
     load_model,
@@ -62,7 +63,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("-n", "--n-timesteps", type=int, help="env steps to train (default: from the config)")
     add("--seed", type=int, default=0, help="random seed of envs and networks (default: 0)")
     add("--n-envs", type=int, help="parallel training envs (default: from the config, else 1)")
-    add("--vec-env", default="dummy", choices=["dummy", "subproc"], help="vectorization")
+    add(
+        "--vec-env",
+        default="auto",
+        choices=VEC_ENVS,
+        help="auto: several envs grouped over the CPU cores, one env in this process",
+    )
     add("--eval-freq", type=int, default=10_000, help="evaluate every N env steps; 0: never")
     add("--eval-episodes", type=int, default=20, help="episodes per evaluation (default: 20)")
     add("--save-freq", type=int, default=5_000, help="checkpoint every N env steps; 0: never")

@@ -5,7 +5,9 @@ Baselines, measured in this same run:
   (5 per step at the default settings), timed inside the very same rollout;
 - the classic ``pybullet_envs`` MinitaurBulletEnv from the pybullet wheel, when it can be
   imported (it needs ``pip install gym==0.26.2 'setuptools<70'``);
-- one env in the main process, for the vectorized figure.
+- for the vectorized figures, one env stepped in the main process (the same monitored
+  env that SB3's ``make_vec_env`` builds), and two bare physics loops in two processes
+  (how far two cores scale at all).
 
     python benchmarks/env_speed.py [--steps 3000] [--video]
 """
@@ -118,21 +120,60 @@ def time_render(width: int, height: int, frames: int = 30) -> float:
     return elapsed
 
 
-def time_vectorized(n_envs: int, steps: int) -> float:
+def time_vectorized(n_envs: int, steps: int, vec_env_cls: type | None) -> float:
+    """Env steps/s of ``n_envs`` envs in ``vec_env_cls``; None: one plain env in-process."""
     from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import SubprocVecEnv
 
+    actions = random_actions(steps)
+    if vec_env_cls is None:
+        env = make_vec_env("minitaur_env:MinitaurBulletEnv-v0", n_envs=1, seed=0).envs[0]
+        env.reset(seed=0)
+        start = time.perf_counter()
+        for action in actions:
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset()
+        elapsed = time.perf_counter() - start
+        env.close()
+        return steps / elapsed
     vec = make_vec_env(
-        "minitaur_env:MinitaurBulletEnv-v0", n_envs=n_envs, seed=0, vec_env_cls=SubprocVecEnv
+        "minitaur_env:MinitaurBulletEnv-v0", n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls
     )
     vec.reset()
-    actions = random_actions(steps)
     start = time.perf_counter()
     for action in actions:
         vec.step(np.tile(action, (n_envs, 1)))
     elapsed = time.perf_counter() - start
     vec.close()
     return n_envs * steps / elapsed
+
+
+def _bare_physics(steps: int, results) -> None:
+    env = MinitaurBulletEnv(randomize_dynamics=False)
+    env.reset(seed=0)
+    sim = env.sim
+    start = time.perf_counter()
+    for _ in range(steps * 5):  # 5 physics steps per env step
+        sim.step()
+    results.put(steps / (time.perf_counter() - start))
+    env.close()
+
+
+def time_bare_physics_processes(n_processes: int, steps: int) -> float:
+    """Summed physics-only steps/s of ``n_processes`` concurrent bare physics loops."""
+    import multiprocessing as mp
+
+    context = mp.get_context("forkserver")
+    results = context.Queue()
+    processes = [
+        context.Process(target=_bare_physics, args=(steps, results)) for _ in range(n_processes)
+    ]
+    for process in processes:
+        process.start()
+    rates = [results.get() for _ in processes]
+    for process in processes:
+        process.join()
+    return sum(rates)
 
 
 def time_video_episode() -> float:
@@ -190,12 +231,27 @@ def main() -> None:
     for width, height in ((640, 480), (960, 720), (320, 240)):
         print(f"render: {width}x{height} {time_render(width, height):.0f} ms/frame")
 
-    one = time_vectorized(1, args.steps // 2)
-    two = time_vectorized(2, args.steps // 2)
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    from minitaur_env.training.vec_env import GroupedSubprocVecEnv
+
+    half = args.steps // 2
+    one = max(time_vectorized(1, half, None) for _ in range(2))
+    physics_one = time_bare_physics_processes(1, half)
+    physics_two = time_bare_physics_processes(2, half)
     print(
-        f"vectorized: SubprocVecEnv 1 worker {one:.0f} steps/s, 2 workers {two:.0f} steps/s; "
-        f"ratio {two / one:.2f}x"
+        f"vectorized: one env in-process {one:.0f} steps/s; bare physics in 2 processes "
+        f"{physics_two / physics_one:.2f}x one process"
     )
+    for name, cls, n_envs in (
+        ("SubprocVecEnv, 1 worker", SubprocVecEnv, 1),
+        ("SubprocVecEnv, 2 workers", SubprocVecEnv, 2),
+        ("GroupedSubprocVecEnv, 2 envs in 2 processes", GroupedSubprocVecEnv, 2),
+        ("GroupedSubprocVecEnv, 8 envs in 2 processes", GroupedSubprocVecEnv, 8),
+        ("DummyVecEnv, 8 envs", DummyVecEnv, 8),
+    ):
+        rate = time_vectorized(n_envs, half if n_envs <= 2 else half // 4, cls)
+        print(f"vectorized: {name}: {rate:.0f} steps/s; {rate / one:.2f}x one env in-process")
     if args.video:
         print(f"video: one 1000-step episode at 640x480, 50 fps: {time_video_episode():.1f} s")
 

@@ -19,6 +19,8 @@ except ImportError:  # sb3-contrib is a dependency, but keep SB3's own algorithm
     TQC = CrossQ = None
 
 BACKENDS = ("sb3", "sbx")
+# "auto": several envs grouped over the CPU cores, a single env in the calling process.
+VEC_ENVS = ("auto", "dummy", "subproc", "grouped")
 # The JAX implementations of the same algorithms by SB3's maintainers (pip install sbx-rl).
 SBX_ALGORITHMS = ("sac", "td3", "ppo", "tqc", "crossq")
 

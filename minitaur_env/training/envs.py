@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import gymnasium as gym
@@ -16,8 +17,14 @@ from stable_baselines3.common.vec_env import (
 
 import minitaur_env  # noqa: F401  (registers the Minitaur ids)
 from minitaur_env.training import UsageError
+from minitaur_env.training.config import VEC_ENVS
+from minitaur_env.training.vec_env import GroupedSubprocVecEnv
 
-VEC_ENV_CLASSES = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
+VEC_ENV_CLASSES = {
+    "dummy": DummyVecEnv,
+    "subproc": SubprocVecEnv,
+    "grouped": GroupedSubprocVecEnv,
+}
 
 
 def qualified_env_id(env_id: str) -> str:
@@ -43,13 +50,19 @@ def make_training_env(
     n_envs: int = 1,
     seed: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
-    vec_env: str = "dummy",
+    vec_env: str = "auto",
     monitor_dir: str | None = None,
     append_monitor: bool = False,
 ) -> VecEnv:
-    """Monitored, vectorized env that raises as soon as a NaN reaches it or leaves it."""
-    if vec_env not in VEC_ENV_CLASSES:
-        raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_CLASSES)}, got {vec_env!r}")
+    """Monitored, vectorized env that raises as soon as a NaN reaches it or leaves it.
+
+    ``vec_env="auto"`` runs several envs grouped over the CPU cores (the same
+    transitions as a DummyVecEnv, faster) and a single env in this process.
+    """
+    if vec_env not in VEC_ENVS:
+        raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
+    if vec_env == "auto":
+        vec_env = "grouped" if n_envs > 1 and (os.cpu_count() or 1) > 1 else "dummy"
     if n_envs < 1:
         raise UsageError(f"--n-envs must be >= 1, got {n_envs}")
     make_env(env_id, env_kwargs).close()  # bad kwargs fail here, not inside a worker
