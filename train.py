@@ -69,6 +69,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         choices=VEC_ENVS,
         help="auto: several envs grouped over the CPU cores, one env in this process",
     )
+    add(
+        "--overlap-updates",
+        action="store_true",
+        help="off-policy only: step the env in a worker process while the gradient steps "
+        "run (same settings; actions lag the policy by one round of updates)",
+    )
     add("--eval-freq", type=int, default=10_000, help="evaluate every N env steps; 0: never")
     add("--eval-episodes", type=int, default=20, help="episodes per evaluation (default: 20)")
     add("--save-freq", type=int, default=5_000, help="checkpoint every N env steps; 0: never")
@@ -104,6 +110,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
     if args.n_timesteps is not None and args.n_timesteps < 1:
         parser.error("-n/--n-timesteps must be >= 1")
+    if args.overlap_updates and args.algo not in OFF_POLICY:
+        parser.error(f"--overlap-updates needs an off-policy algorithm, not {args.algo}")
+    if args.overlap_updates and args.vec_env not in ("auto", "subproc"):
+        parser.error("--overlap-updates steps the env in a SubprocVecEnv; drop --vec-env")
     return args
 
 
@@ -126,6 +136,7 @@ def resolve_config(args: argparse.Namespace) -> dict[str, Any]:
         "n_timesteps": int(run.get("n_timesteps", 100_000)),
         "n_envs": int(run.get("n_envs", 1)),
         "vec_env": args.vec_env,
+        "overlap_updates": args.overlap_updates,
         "normalize": run.get("normalize", False),
         "policy": run.get("policy", "MlpPolicy"),
         "hyperparams": hyperparams,
@@ -144,8 +155,12 @@ def build(config: dict[str, Any], run_dir: Path, resume_from: int | None):
     from stable_baselines3.common.vec_env import VecNormalize
 
     from minitaur_env.training.envs import make_eval_env, make_training_env
+    from minitaur_env.training.pipeline import overlapped
 
     algo_cls = algorithm_class(config["algo"], config.get("backend", "sb3"))
+    overlap = config.get("overlap_updates", False)
+    if overlap:
+        algo_cls = overlapped(algo_cls)
     seed = config["seed"] + (resume_from or 0)  # new episodes after a resume, same seed
     env = make_training_env(
         config["env"],
@@ -155,6 +170,7 @@ def build(config: dict[str, Any], run_dir: Path, resume_from: int | None):
         vec_env=config["vec_env"],
         monitor_dir=str(run_dir / "monitor"),
         append_monitor=resume_from is not None,
+        overlap_updates=overlap,
     )
     normalize = config["normalize"]
     if normalize:

@@ -237,6 +237,9 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
         (["--hyperparams", "novalue"], "expects key=value"),
         (["--resume", "{tmp}/missing-run"], "no config.yml"),
         (["--env-kwargs", "energy_weight=-1"], "energy_weight must be finite and >= 0"),
+        (["--algo", "ppo", "--overlap-updates"], "needs an off-policy algorithm, not ppo"),
+        (["--overlap-updates", "--vec-env", "dummy"], "drop --vec-env"),
+        (["--vec-env", "threads"], "invalid choice: 'threads'"),
     ],
 )
 def test_user_errors_give_one_clear_line(tmp_path, args, message):

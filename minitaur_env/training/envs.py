@@ -18,6 +18,7 @@ from stable_baselines3.common.vec_env import (
 import minitaur_env  # noqa: F401  (registers the Minitaur ids)
 from minitaur_env.training import UsageError
 from minitaur_env.training.config import VEC_ENVS
+from minitaur_env.training.pipeline import OverlappingVecEnv
 from minitaur_env.training.vec_env import GroupedSubprocVecEnv
 
 VEC_ENV_CLASSES = {
@@ -53,8 +54,13 @@ def make_training_env(
     vec_env: str = "auto",
     monitor_dir: str | None = None,
     append_monitor: bool = False,
+    overlap_updates: bool = False,
 ) -> VecEnv:
     """Monitored, vectorized env that raises as soon as a NaN reaches it or leaves it.
+
+    ``overlap_updates`` steps the envs in an :class:`OverlappingVecEnv`, where an
+    algorithm from :func:`minitaur_env.training.pipeline.overlapped` trains while the
+    envs step.
 
     ``vec_env="auto"`` runs several envs grouped over the CPU cores (the same
     transitions as a DummyVecEnv, faster) and a single env in this process.
@@ -73,7 +79,7 @@ def make_training_env(
         env_kwargs=env_kwargs or {},
         monitor_dir=monitor_dir,
         monitor_kwargs={"override_existing": not append_monitor},
-        vec_env_cls=VEC_ENV_CLASSES[vec_env],
+        vec_env_cls=OverlappingVecEnv if overlap_updates else VEC_ENV_CLASSES[vec_env],
     )
     return VecCheckNan(env, raise_exception=True)
 
