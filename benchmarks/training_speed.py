@@ -2,13 +2,18 @@
 
 Every variant trains SAC with the same algorithmic settings as SB3's defaults (batch 256,
 (256, 256) actor and critics, one gradient step per env step) and differs only in how
-the work is executed: torch threads, updates batched in time, or SBX (the JAX
-implementation of SAC by SB3's maintainers, ``pip install sbx-rl``). Each is measured in
+the work is executed: torch threads, updates batched in time, SBX (the JAX
+implementation of SAC by SB3's maintainers, ``pip install sbx-rl``), or gradient steps
+overlapped with the env stepping in a worker process (``train.py --overlap-updates``,
+where actions come from the policy one round of updates earlier). Each is measured in
 this one process, one after the other, over the learning phase (from 200 updates after
 ``learning_starts``, so JAX's compilation is not counted). Also prints the memory of a 1M
 transition replay buffer.
 
-    python benchmarks/training_speed.py [--steps 1500] [--warmup 300]
+Then PPO with the tuned Minitaur config (8 envs), its envs in one process (SB3's
+DummyVecEnv) against ``GroupedSubprocVecEnv`` (``train.py``'s default for several envs).
+
+    python benchmarks/training_speed.py [--steps 2000] [--warmup 300] [--ppo-steps 16384]
 """
 
 from __future__ import annotations
@@ -21,8 +26,10 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
 
 import minitaur_env  # noqa: F401
+from minitaur_env.training.pipeline import OverlappingVecEnv, overlapped
 
 
 class _LearningPhaseTimer(BaseCallback):
@@ -39,22 +46,56 @@ class _LearningPhaseTimer(BaseCallback):
         return True
 
 
-def measure(steps: int, warmup: int, threads: int, backend: str = "sb3", **sac_kwargs) -> float:
+def measure(
+    steps: int,
+    warmup: int,
+    threads: int,
+    backend: str = "sb3",
+    overlap: bool = False,
+    **sac_kwargs,
+) -> float:
     """Env steps/s of the learning phase, timed from 200 updates in (after JIT warm-up)."""
     torch.set_num_threads(threads)
-    env = gym.make("MinitaurBulletEnv-v0")
+    if overlap:
+        env = make_vec_env("minitaur_env:MinitaurBulletEnv-v0", vec_env_cls=OverlappingVecEnv)
+    else:
+        env = gym.make("MinitaurBulletEnv-v0")
     if backend == "sbx":
         from sbx import SAC as algorithm
 
         sac_kwargs.setdefault("policy_kwargs", {"net_arch": [256, 256]})
     else:
         algorithm = SAC
+    if overlap:
+        algorithm = overlapped(algorithm)
     model = algorithm("MlpPolicy", env, learning_starts=warmup, seed=0, device="cpu", **sac_kwargs)
     timer = _LearningPhaseTimer(warmup + 200)
     model.learn(total_timesteps=warmup + steps, callback=timer)
     elapsed = time.perf_counter() - timer.started
     env.close()
     return (model.num_timesteps - timer.steps_at_start) / elapsed
+
+
+def measure_ppo(steps: int, vec_env: str) -> float:
+    """Env steps/s of PPO with the tuned Minitaur config (8 envs), rollouts and updates."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from minitaur_env.training.config import RUN_KEYS, load_hyperparams
+    from minitaur_env.training.envs import make_training_env
+
+    hyperparams = load_hyperparams("ppo", "MinitaurBulletEnv-v0")
+    run = {key: hyperparams.pop(key) for key in RUN_KEYS if key in hyperparams}
+    env = make_training_env("MinitaurBulletEnv-v0", n_envs=run["n_envs"], seed=0, vec_env=vec_env)
+    env = VecNormalize(env)
+    model = PPO(run["policy"], env, seed=0, device="cpu", **hyperparams)
+    rollout = hyperparams["n_steps"] * run["n_envs"]
+    model.learn(rollout)  # first rollout and update: start-up, not timed
+    start = time.perf_counter()
+    model.learn(max(steps // rollout, 1) * rollout, reset_num_timesteps=False)
+    elapsed = time.perf_counter() - start
+    env.close()
+    return (model.num_timesteps - rollout) / elapsed
 
 
 def replay_buffer_bytes(size: int = 1_000_000) -> int:
@@ -69,6 +110,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000, help="learning-phase steps")
     parser.add_argument("--warmup", type=int, default=300, help="random steps before learning")
+    parser.add_argument("--ppo-steps", type=int, default=16384, help="timed PPO env steps")
     args = parser.parse_args()
     default_threads = torch.get_num_threads()
 
@@ -81,10 +123,21 @@ def main() -> None:
         "SBX (JAX) SAC, 8 updates every 8 steps": dict(
             threads=default_threads, backend="sbx", train_freq=8, gradient_steps=8
         ),
+        "SB3 SAC, updates overlapped with env steps": dict(threads=default_threads, overlap=True),
+        "SBX SAC, updates overlapped with env steps": dict(
+            threads=default_threads, backend="sbx", overlap=True
+        ),
     }
     for name, settings in variants.items():
         rate = measure(args.steps, args.warmup, **settings)
         print(f"{name}: {rate:.1f} env steps/s; ratio {rate / baseline:.2f}x the defaults")
+    dummy = measure_ppo(args.ppo_steps, "dummy")
+    grouped = measure_ppo(args.ppo_steps, "grouped")
+    print(
+        f"PPO, tuned config (8 envs, 256-step rollouts, 10 epochs): DummyVecEnv {dummy:.0f} "
+        f"env steps/s; GroupedSubprocVecEnv (2 processes) {grouped:.0f}; "
+        f"ratio {grouped / dummy:.2f}x"
+    )
     mib = replay_buffer_bytes() / 2**20
     print(f"replay buffer of 1M transitions (float32 observations): {mib:.0f} MiB")
 
