@@ -403,6 +403,11 @@ def main(argv: list[str] | None = None) -> int:
             shutil.rmtree(run_dir, ignore_errors=True)  # a run that never started
         print(f"train.py: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        if run_dir is not None and not args.resume:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        print("\ninterrupted before training started; nothing was saved", file=sys.stderr)
+        return 130
 
     start_steps = model.num_timesteps
     remaining = config["n_timesteps"] - start_steps
@@ -446,4 +451,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:  # before main() could take over, e.g. during imports
+        sys.exit(130)
