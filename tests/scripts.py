@@ -29,7 +29,11 @@ def run_script(
     )
 
 
-def start_script(script: str, *args: str, cwd: Path) -> subprocess.Popen[str]:
+def start_script(
+    script: str, *args: str, cwd: Path, own_process_group: bool = False
+) -> subprocess.Popen[str]:
+    """Start a script; ``own_process_group`` lets a test signal it and its workers at
+    once, as a terminal's Ctrl-C does."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.Popen(
         [sys.executable, str(REPO / script), *args],
@@ -38,6 +42,7 @@ def start_script(script: str, *args: str, cwd: Path) -> subprocess.Popen[str]:
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        start_new_session=own_process_group,
     )
 
 

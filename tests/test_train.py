@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 import zipfile
@@ -183,6 +184,28 @@ def test_ctrl_c_saves_model_and_replay_buffer(tmp_path):
     assert (
         load_model(SAC, run / "checkpoints" / f"rl_model_{steps}_steps.zip").num_timesteps == steps
     )
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--algo", "ppo", "--n-envs", "4", "--hyperparams", "n_steps=32", "batch_size=32"],
+        ["--overlap-updates", *FAST_SAC],
+        ["--vec-env", "subproc", *FAST_SAC],
+    ],
+    ids=["ppo-grouped-envs", "sac-overlapped", "sac-subproc"],
+)
+def test_terminal_ctrl_c_with_worker_processes_still_saves(tmp_path, args):
+    process = start_script(
+        "train.py", "-n", "100000", "--eval-freq", "0", "--save-freq", "100", *args, *TINY,
+        cwd=tmp_path, own_process_group=True,
+    )  # fmt: skip
+    _wait_for("logs/*/*/checkpoints/rl_model_100_steps.zip", tmp_path)
+    time.sleep(1.0)
+    os.killpg(process.pid, signal.SIGINT)  # the trainer and its workers, like Ctrl-C
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert "interrupted: saved" in stderr and "Traceback" not in stderr
 
 
 def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):

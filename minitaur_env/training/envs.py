@@ -9,7 +9,6 @@ import gymnasium as gym
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import (
     DummyVecEnv,
-    SubprocVecEnv,
     VecCheckNan,
     VecEnv,
     VecNormalize,
@@ -19,11 +18,11 @@ import minitaur_env  # noqa: F401  (registers the Minitaur ids)
 from minitaur_env.training import UsageError
 from minitaur_env.training.config import VEC_ENVS
 from minitaur_env.training.pipeline import OverlappingVecEnv
-from minitaur_env.training.vec_env import GroupedSubprocVecEnv
+from minitaur_env.training.vec_env import GroupedSubprocVecEnv, SubprocVecEnvIgnoringCtrlC
 
 VEC_ENV_CLASSES = {
     "dummy": DummyVecEnv,
-    "subproc": SubprocVecEnv,
+    "subproc": SubprocVecEnvIgnoringCtrlC,
     "grouped": GroupedSubprocVecEnv,
 }
 

@@ -20,14 +20,18 @@ from typing import Any, TypeVar
 
 import gymnasium as gym
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
+from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
+
+from minitaur_env.training.vec_env import SubprocVecEnvIgnoringCtrlC
 
 Algorithm = TypeVar("Algorithm", bound=type[BaseAlgorithm])
 
 
-class OverlappingVecEnv(SubprocVecEnv):
+class OverlappingVecEnv(SubprocVecEnvIgnoringCtrlC):
     """A SubprocVecEnv that runs queued work after sending the actions.
+
+    Its workers leave Ctrl-C to the caller, which saves a checkpoint and closes them.
 
     A subclass rather than a wrapper, so that the training env keeps the same wrapper
     chain as the eval env (SB3 syncs VecNormalize statistics layer by layer).

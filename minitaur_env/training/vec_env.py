@@ -23,7 +23,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import (
     CloudpickleWrapper,
     VecEnvIndices,
@@ -32,11 +32,36 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 )
 
 
+def _leave_ctrl_c_to_the_caller() -> None:
+    # A terminal's Ctrl-C reaches every process of the group. A worker that died of it
+    # would break the caller's pipe while the caller saves a checkpoint and closes.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class _IgnoringCtrlC:
+    """An env function that first makes its (worker) process ignore Ctrl-C."""
+
+    def __init__(self, env_fn: Callable[[], gym.Env]) -> None:
+        self.env_fn = env_fn
+
+    def __call__(self) -> gym.Env:
+        _leave_ctrl_c_to_the_caller()
+        return self.env_fn()
+
+
+class SubprocVecEnvIgnoringCtrlC(SubprocVecEnv):
+    """SB3's SubprocVecEnv, with workers that leave Ctrl-C to the calling process."""
+
+    def __init__(
+        self, env_fns: list[Callable[[], gym.Env]], start_method: str | None = None
+    ) -> None:
+        super().__init__([_IgnoringCtrlC(fn) for fn in env_fns], start_method)
+
+
 def _group_worker(
     remote: Connection, parent_remote: Connection, env_fns: CloudpickleWrapper
 ) -> None:
-    # Ctrl-C is the caller's to handle: it may still save a checkpoint and close us.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _leave_ctrl_c_to_the_caller()
     parent_remote.close()
     group = DummyVecEnv(env_fns.var)
     try:
