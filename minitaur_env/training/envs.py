@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import gymnasium as gym
@@ -18,7 +17,11 @@ import minitaur_env  # noqa: F401  (registers the Minitaur ids)
 from minitaur_env.training import UsageError
 from minitaur_env.training.config import VEC_ENVS
 from minitaur_env.training.pipeline import OverlappingVecEnv
-from minitaur_env.training.vec_env import GroupedSubprocVecEnv, SubprocVecEnvIgnoringCtrlC
+from minitaur_env.training.vec_env import (
+    GroupedSubprocVecEnv,
+    SubprocVecEnvIgnoringCtrlC,
+    available_cores,
+)
 
 VEC_ENV_CLASSES = {
     "dummy": DummyVecEnv,
@@ -67,7 +70,7 @@ def make_training_env(
     if vec_env not in VEC_ENVS:
         raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
     if vec_env == "auto":
-        vec_env = "grouped" if n_envs > 1 and (os.cpu_count() or 1) > 1 else "dummy"
+        vec_env = "grouped" if n_envs > 1 and available_cores() > 1 else "dummy"
     if n_envs < 1:
         raise UsageError(f"--n-envs must be >= 1, got {n_envs}")
     make_env(env_id, env_kwargs).close()  # bad kwargs fail here, not inside a worker

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import itertools
 import multiprocessing as mp
+import os
 import signal
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
@@ -70,7 +71,7 @@ def _group_worker(
             if command == "step":
                 remote.send((*group.step(data), group.reset_infos))
             elif command == "reset":
-                group._seeds, group._options = data
+                _prepare_reset(group, *data)
                 remote.send((group.reset(), group.reset_infos))
             elif command == "call":
                 name, args, kwargs = data
@@ -81,6 +82,21 @@ def _group_worker(
                 return
     except EOFError:  # the caller went away without closing us
         group.close()
+
+
+def _prepare_reset(group: DummyVecEnv, seeds: list[int | None], options: list[dict]) -> None:
+    """Hand a group its slice of the seeds and options of the next reset."""
+    # VecEnv.seed() gives consecutive seeds (or none), so a slice is its first + index.
+    if seeds[0] is not None:
+        group.seed(seeds[0])
+    group.set_options(options)
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity, where the OS reports one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def _split(n_envs: int, n_groups: int) -> list[range]:
@@ -99,7 +115,7 @@ def _concatenate(parts: Sequence[VecEnvObs]) -> VecEnvObs:
 class GroupedSubprocVecEnv(VecEnv):
     """``n_envs`` envs in ``n_processes`` processes; the first group runs in this one.
 
-    ``n_processes`` defaults to the number of CPU cores, capped at the number of envs.
+    ``n_processes`` defaults to the CPU cores available, capped at the number of envs.
     ``n_processes=1`` is a ``DummyVecEnv`` in all but name. As with ``SubprocVecEnv``,
     the env functions must be picklable and the calling script needs an
     ``if __name__ == "__main__":`` guard (workers start with forkserver or spawn).
@@ -113,7 +129,8 @@ class GroupedSubprocVecEnv(VecEnv):
     ) -> None:
         if not env_fns:
             raise ValueError("GroupedSubprocVecEnv needs at least one env")
-        n_processes = n_processes or mp.cpu_count()
+        if n_processes is None:
+            n_processes = available_cores()
         if n_processes < 1:
             raise ValueError(f"n_processes must be at least 1, got {n_processes}")
         self.groups = _split(len(env_fns), min(n_processes, len(env_fns)))
