@@ -70,7 +70,7 @@ def _find_overlapping(env: VecEnv | None) -> OverlappingVecEnv | None:
 class _OverlappedUpdates:
     """Mixin: ``train`` is queued on the env's OverlappingVecEnv when there is one."""
 
-    def train(self, gradient_steps: int, batch_size: int = 256) -> None:
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:  # SB3's default
         overlapping = _find_overlapping(self.env)  # type: ignore[attr-defined]
         train = functools.partial(
             super().train,  # type: ignore[misc]
