@@ -1,9 +1,9 @@
 """Learning benchmark: a configuration over K seeds, return at fixed steps and wall-clock.
 
 Runs ``train.py`` once per seed (one after the other), then prints, per run and as the
-median over runs, the mean evaluation return (the run's EvalCallback, deterministic,
-raw classic return) at the last evaluation at or before each step count, and the
-wall-clock at which the evaluation return first reached each milestone.
+median over the runs that trained that far, the mean evaluation return (the run's
+EvalCallback, deterministic, raw classic return) at the last evaluation at or before each
+step count, and the wall-clock at which the evaluation return first reached each milestone.
 
     python benchmarks/learning.py --algo ppo -n 300000 --seeds 0 1 2 -- --eval-episodes 10
     python benchmarks/learning.py --summarize logs/ppo/MinitaurBulletEnv-v0_1 ...
@@ -46,7 +46,8 @@ def run_summary(run_dir: Path, at: list[int], milestones: list[float]) -> dict:
     at_steps = []
     for target in at:
         earlier = np.nonzero(steps <= target)[0]
-        at_steps.append(float(returns[earlier[-1]]) if len(earlier) else np.nan)
+        trained_that_far = len(earlier) and steps[-1] >= target
+        at_steps.append(float(returns[earlier[-1]]) if trained_that_far else np.nan)
     wall = wall_clock_at(run_dir, steps)
     reached = {}
     for milestone in milestones:
@@ -104,8 +105,14 @@ def main() -> None:
             cells += f"{text:>24}"
         best, step = summary["best"]
         print(f"{str(summary['run'])[-48:]:<48}{cells}{f'{best:.2f} @{step // 1000}k':>18}")
-    medians = np.nanmedian([s["at"] for s in summaries], axis=0)
-    print(f"{'median over runs':<48}" + "".join(f"{value:>10.2f}" for value in medians))
+    table = np.array([s["at"] for s in summaries])
+    medians, counts = "", ""
+    for column in table.T:
+        reached = column[~np.isnan(column)]
+        medians += f"{np.median(reached):>10.2f}" if len(reached) else f"{'-':>10}"
+        counts += f"{f'{len(reached)}/{len(column)}':>10}"
+    print(f"{'median over the runs that got that far':<48}{medians}")
+    print(f"{'runs that got that far':<48}{counts}")
 
 
 if __name__ == "__main__":
