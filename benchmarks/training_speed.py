@@ -11,7 +11,8 @@ this one process, one after the other, over the learning phase (from 200 updates
 transition replay buffer.
 
 Then PPO with the tuned Minitaur config (8 envs), its envs in one process (SB3's
-DummyVecEnv) against ``GroupedSubprocVecEnv`` (``train.py``'s default for several envs).
+DummyVecEnv, torch's default threads) against ``GroupedSubprocVecEnv`` with one torch
+thread (what ``train.py`` does by default for several envs).
 
     python benchmarks/training_speed.py [--steps 2000] [--warmup 300] [--ppo-steps 16384]
 """
@@ -76,7 +77,7 @@ def measure(
     return (model.num_timesteps - timer.steps_at_start) / elapsed
 
 
-def measure_ppo(steps: int, vec_env: str) -> float:
+def measure_ppo(steps: int, vec_env: str, default_threads: int) -> float:
     """Env steps/s of PPO with the tuned Minitaur config (8 envs), rollouts and updates."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
@@ -84,6 +85,7 @@ def measure_ppo(steps: int, vec_env: str) -> float:
     from minitaur_env.training.config import RUN_KEYS, load_hyperparams
     from minitaur_env.training.envs import make_training_env
 
+    torch.set_num_threads(1 if vec_env == "grouped" else default_threads)  # as train.py does
     hyperparams = load_hyperparams("ppo", "MinitaurBulletEnv-v0")
     run = {key: hyperparams.pop(key) for key in RUN_KEYS if key in hyperparams}
     env = make_training_env("MinitaurBulletEnv-v0", n_envs=run["n_envs"], seed=0, vec_env=vec_env)
@@ -131,11 +133,11 @@ def main() -> None:
     for name, settings in variants.items():
         rate = measure(args.steps, args.warmup, **settings)
         print(f"{name}: {rate:.1f} env steps/s; ratio {rate / baseline:.2f}x the defaults")
-    dummy = measure_ppo(args.ppo_steps, "dummy")
-    grouped = measure_ppo(args.ppo_steps, "grouped")
+    dummy = measure_ppo(args.ppo_steps, "dummy", default_threads)
+    grouped = measure_ppo(args.ppo_steps, "grouped", default_threads)
     print(
         f"PPO, tuned config (8 envs, 256-step rollouts, 10 epochs): DummyVecEnv {dummy:.0f} "
-        f"env steps/s; GroupedSubprocVecEnv (2 processes) {grouped:.0f}; "
+        f"env steps/s; GroupedSubprocVecEnv (2 processes, 1 torch thread) {grouped:.0f}; "
         f"ratio {grouped / dummy:.2f}x"
     )
     mib = replay_buffer_bytes() / 2**20

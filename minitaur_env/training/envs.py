@@ -48,6 +48,13 @@ def qualified_env_id(env_id: str) -> str:
     return env_id
 
 
+def resolve_vec_env(vec_env: str, n_envs: int) -> str:
+    """``auto``: grouped over the cores for several envs, else one env in this process."""
+    if vec_env == "auto":
+        return "grouped" if n_envs > 1 and available_cores() > 1 else "dummy"
+    return vec_env
+
+
 def make_training_env(
     env_id: str,
     n_envs: int = 1,
@@ -69,8 +76,7 @@ def make_training_env(
     """
     if vec_env not in VEC_ENVS:
         raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
-    if vec_env == "auto":
-        vec_env = "grouped" if n_envs > 1 and available_cores() > 1 else "dummy"
+    vec_env = resolve_vec_env(vec_env, n_envs)
     if n_envs < 1:
         raise UsageError(f"--n-envs must be >= 1, got {n_envs}")
     make_env(env_id, env_kwargs).close()  # bad kwargs fail here, not inside a worker
