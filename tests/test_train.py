@@ -302,3 +302,18 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     assert load_hyperparams("sac", "Pendulum-v1") == {"n_timesteps": 100000, "policy": "MlpPolicy"}
     with pytest.raises(UsageError, match="no entry 'nope'"):
         load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="nope")
+
+
+def test_runs_started_together_get_their_own_folders(tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from minitaur_env.training.runs import new_run_dir
+
+    def start(_):
+        return new_run_dir(tmp_path / "logs", "tqc", "MinitaurBulletEnv-v0")
+
+    for _ in range(5):
+        with ThreadPoolExecutor(8) as pool:
+            folders = list(pool.map(start, range(8)))
+        assert len(set(folders)) == 8 and all(folder.is_dir() for folder in folders)
+    assert len(list((tmp_path / "logs" / "tqc").iterdir())) == 40  # no probe left behind

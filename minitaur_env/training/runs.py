@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import tempfile
 from pathlib import Path
 
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -36,9 +37,9 @@ def run_dirs(log_folder: str | Path, algo: str, env_id: str) -> list[Path]:
 def ensure_writable(folder: Path) -> None:
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        probe = folder / ".write-test"
-        probe.write_text("")
-        probe.unlink()
+        # A uniquely named probe: runs started together must not delete each other's.
+        with tempfile.TemporaryFile(dir=folder):
+            pass
     except OSError as error:
         raise UsageError(f"cannot write to {folder}: {error.strerror or error}") from error
 
