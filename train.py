@@ -146,26 +146,18 @@ def resolve_config(args: argparse.Namespace) -> dict[str, Any]:
         "video_freq": args.video_freq,
         "video_length": args.video_length,
         "device": args.device,
-        "num_threads": args.num_threads,
         "tensorboard_log": args.tensorboard_log,
     }
 
 
 def build(config: dict[str, Any], run_dir: Path, resume_from: int | None):
     """The training env, the model (fresh or from a checkpoint) and the eval env."""
-    import torch
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from minitaur_env.training.envs import make_eval_env, make_training_env, resolve_vec_env
+    from minitaur_env.training.envs import make_eval_env, make_training_env
     from minitaur_env.training.pipeline import overlapped
 
     algo_cls = algorithm_class(config["algo"], config.get("backend", "sb3"))
-    if resolve_vec_env(config["vec_env"], config["n_envs"]) == "grouped" and not config.get(
-        "num_threads"
-    ):
-        # The worker processes take the other cores; torch's idle threads spin-wait on
-        # them and, measured with PPO's 8 envs, cost 40% of the speed.
-        torch.set_num_threads(1)
     overlap = config.get("overlap_updates", False)
     if overlap:
         algo_cls = overlapped(algo_cls)
@@ -384,18 +376,28 @@ def summarize(run_dir: Path, model, elapsed: float, trained_steps: int, env_id: 
     print("\n".join(lines))
 
 
+def set_torch_threads(num_threads: int, config: dict[str, Any]) -> None:
+    """``--num-threads``, else one thread when grouped envs use the other cores."""
+    import torch
+
+    from minitaur_env.training.envs import resolve_vec_env
+
+    if num_threads > 0:
+        torch.set_num_threads(num_threads)
+    elif resolve_vec_env(config["vec_env"], config["n_envs"]) == "grouped":
+        # torch's idle threads spin-wait on the workers' cores: with PPO's 8 envs that
+        # cost 40% of the speed.
+        torch.set_num_threads(1)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from minitaur_env.training.callbacks import TrainingDiverged
 
-    if args.num_threads > 0:
-        import torch
-
-        torch.set_num_threads(args.num_threads)
-
     run_dir = None
     try:
         config, run_dir, resume_from = prepare_run(args)
+        set_torch_threads(args.num_threads, config)
         fresh = resume_from is None
         config["verbose"] = args.verbose
         if fresh:
