@@ -14,8 +14,8 @@ from datetime import datetime
 from pathlib import Path
 
 from minitaur_env.training import UsageError
+from minitaur_env.training.algorithms import ALGORITHMS
 from minitaur_env.training.cli import OneLineErrorParser
-from minitaur_env.training.config import ALGORITHMS
 
 DEFAULT_ENV = "MinitaurBulletEnv-v0"
 
@@ -73,7 +73,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    from minitaur_env.training.config import parse_overrides
     from minitaur_env.training.envs import make_env
     from minitaur_env.training.evaluation import (
         find_model,
@@ -82,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         run_episodes,
         summarize,
     )
-    from minitaur_env.training.runs import ensure_writable
+    from minitaur_env.training.hyperparams import parse_overrides
+    from minitaur_env.training.run_folder import ensure_writable
     from minitaur_env.training.video import atomic_path, record_video
 
     try:

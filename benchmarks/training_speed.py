@@ -3,9 +3,7 @@
 Every variant trains SAC with the same algorithmic settings as SB3's defaults (batch 256,
 (256, 256) actor and critics, one gradient step per env step) and differs only in how
 the work is executed: torch threads, updates batched in time, SBX (the JAX
-implementation of SAC by SB3's maintainers, ``pip install sbx-rl``), or gradient steps
-overlapped with the env stepping in a worker process (``train.py --overlap-updates``,
-where actions come from the policy one round of updates earlier). Each is measured in
+implementation of SAC by SB3's maintainers, ``pip install sbx-rl``). Each is measured in
 this one process, one after the other, over the learning phase (from 200 updates after
 ``learning_starts``, so JAX's compilation is not counted). Also prints the memory of a 1M
 transition replay buffer.
@@ -27,10 +25,8 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.env_util import make_vec_env
 
 import minitaur_env  # noqa: F401
-from minitaur_env.training.pipeline import OverlappingVecEnv, overlapped
 
 
 class _LearningPhaseTimer(BaseCallback):
@@ -52,23 +48,17 @@ def measure(
     warmup: int,
     threads: int,
     backend: str = "sb3",
-    overlap: bool = False,
     **sac_kwargs,
 ) -> float:
     """Env steps/s of the learning phase, timed from 200 updates in (after JIT warm-up)."""
     torch.set_num_threads(threads)
-    if overlap:
-        env = make_vec_env("minitaur_env:MinitaurBulletEnv-v0", vec_env_cls=OverlappingVecEnv)
-    else:
-        env = gym.make("MinitaurBulletEnv-v0")
+    env = gym.make("MinitaurBulletEnv-v0")
     if backend == "sbx":
         from sbx import SAC as algorithm
 
         sac_kwargs.setdefault("policy_kwargs", {"net_arch": [256, 256]})
     else:
         algorithm = SAC
-    if overlap:
-        algorithm = overlapped(algorithm)
     model = algorithm("MlpPolicy", env, learning_starts=warmup, seed=0, device="cpu", **sac_kwargs)
     timer = _LearningPhaseTimer(warmup + 200)
     model.learn(total_timesteps=warmup + steps, callback=timer)
@@ -82,8 +72,8 @@ def measure_ppo(steps: int, vec_env: str, default_threads: int) -> float:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from minitaur_env.training.config import RUN_KEYS, load_hyperparams
     from minitaur_env.training.envs import make_training_env
+    from minitaur_env.training.hyperparams import RUN_KEYS, load_hyperparams
 
     torch.set_num_threads(1 if vec_env == "grouped" else default_threads)  # as train.py does
     hyperparams = load_hyperparams("ppo", "MinitaurBulletEnv-v0")
@@ -124,10 +114,6 @@ def main() -> None:
         "SBX (JAX) SAC": dict(threads=default_threads, backend="sbx"),
         "SBX (JAX) SAC, 8 updates every 8 steps": dict(
             threads=default_threads, backend="sbx", train_freq=8, gradient_steps=8
-        ),
-        "SB3 SAC, updates overlapped with env steps": dict(threads=default_threads, overlap=True),
-        "SBX SAC, updates overlapped with env steps": dict(
-            threads=default_threads, backend="sbx", overlap=True
         ),
     }
     for name, settings in variants.items():

@@ -46,10 +46,11 @@ def start_script(
     )
 
 
-def error_lines(result: subprocess.CompletedProcess[str]) -> list[str]:
-    """stderr without PyBullet's import banner."""
+def error_lines(result: subprocess.CompletedProcess[str] | str) -> list[str]:
+    """stderr (of a finished script, or as text) without PyBullet's import banner."""
+    stderr = result if isinstance(result, str) else result.stderr
     return [
         line
-        for line in result.stderr.splitlines()
+        for line in stderr.splitlines()
         if line.strip() and not line.startswith("pybullet build time")
     ]

@@ -12,6 +12,7 @@ import pybullet
 import pytest
 from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env as gym_check_env
+from gymnasium.utils.passive_env_checker import env_render_passive_checker
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import minitaur_env
@@ -57,13 +58,27 @@ def test_make_by_module_prefixed_id_and_classic_id_are_the_same_env():
 
 
 @pytest.mark.parametrize("env_id", minitaur_env.ENV_IDS)
-def test_gymnasium_and_sb3_checkers_pass_without_warnings(env_id, display):
-    # gymnasium's checker also makes the env in every declared render mode, the GUI included.
+def test_gymnasium_and_sb3_checkers_pass_without_warnings_headless(env_id):
     env = gym.make(env_id)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
+        gym_check_env(env.unwrapped, skip_render_check=True)
+        sb3_check_env(env.unwrapped, warn=True, skip_render_check=True)
+    env.close()
+    frames = gym.make(env_id, render_mode="rgb_array", width=64, height=48)
+    frames.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env_render_passive_checker(frames.unwrapped)
+    frames.close()
+
+
+def test_gymnasium_checker_passes_in_every_render_mode_with_a_display(display):
+    # gymnasium's full check also makes the env in "human" mode: the GUI.
+    env = gym.make("MinitaurBulletEnv-v0")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         gym_check_env(env.unwrapped)
-        sb3_check_env(env.unwrapped, warn=True)
     env.close()
 
 
@@ -178,12 +193,13 @@ def test_standing_robot_does_not_terminate_and_time_limit_truncates():
     env.close()
 
 
-def test_distance_limit_terminates():
-    env = MinitaurBulletEnv(distance_limit=0.05)
+@pytest.mark.parametrize("limit", [0.05, float("inf")])
+def test_distance_limit_terminates_only_beyond_the_limit(limit):
+    env = MinitaurBulletEnv(distance_limit=limit)
     env.reset(seed=0)
     env.sim.reset_base(env.robot.body, (0.1, 0.0, 0.2), (0, 0, 0, 1))
     _, _, terminated, _, _ = env.step(np.zeros(8, np.float32))
-    assert terminated
+    assert terminated == (limit < 0.1)
     env.close()
 
 
@@ -198,17 +214,41 @@ def test_duck_env_terminates_when_the_duck_touches_the_ground():
     env.close()
 
 
-def test_overheat_protection_switches_a_stalled_motor_off(env):
+@pytest.mark.parametrize("protection", [True, False])
+def test_overheat_protection_switches_a_stalled_motor_off(protection):
+    env = MinitaurBulletEnv(
+        on_rack=True, randomize_dynamics=False, motor_overheat_protection=protection
+    )
     env.reset(seed=0)
-    robot = env.robot
-    stalled = np.array([3.0, 0, 0, 0, 0, 0, 0, 0])
-    for _ in range(500):  # exactly 1 s of physics steps: still allowed
-        robot._update_overheat(stalled)
-    assert robot.motors_enabled.all()
-    robot._update_overheat(stalled)
-    assert not robot.motors_enabled[0] and robot.motors_enabled[1:].all()
+    body, joint, client = env.robot.body, env.robot.motor_joints[0], env.sim._id
+    # Pin motor 0's link to the world: commanded away from its angle, it stalls at full torque.
+    position, orientation = pybullet.getLinkState(body, joint, physicsClientId=client)[:2]
+    pin = pybullet.createConstraint(
+        body, joint, -1, -1, pybullet.JOINT_FIXED, [0, 0, 0], [0, 0, 0], position,
+        childFrameOrientation=orientation, physicsClientId=client,
+    )  # fmt: skip
+    action = np.zeros(8, np.float32)
+    action[[0, 4]] = 1.0
+    enabled = []
+    for _ in range(110):
+        obs, _, _, _, info = env.step(action)
+        enabled.append(info["motors_enabled"].copy())
+    enabled = np.array(enabled)
+    assert abs(obs[16]) > 2.45  # the stall torque the protection watches for
+    assert enabled[:, 1:].all()
+    if protection:  # more than 1 s (100 steps) above 2.45 N m: off
+        assert enabled[:100, 0].all() and not enabled[100:, 0].any()
+    else:
+        assert enabled[:, 0].all()
+    # Released, a live motor holds its target; a switched-off one applies no torque.
+    pybullet.removeConstraint(pin, physicsClientId=client)
+    for _ in range(20):
+        obs, *_ = env.step(action)
+    target = 1.9728  # motor 0's angle for this action, as the live motor reaches it
+    assert (abs(obs[0] - target) > 0.3) == protection
     env.reset(seed=0)
     assert env.robot.motors_enabled.all()
+    env.close()
 
 
 # -- rendering --------------------------------------------------------------------------
@@ -223,9 +263,15 @@ def test_rgb_array_frames_follow_the_robot_and_are_not_blank():
     assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
     assert frame.std() > 10  # a blank (EGL-style) frame is uniform
     # The camera follows the base: moving the robot far away keeps it in view.
+    start = env.robot.base_pose()[0]
     env.sim.reset_base(env.robot.body, (5.0, 3.0, 0.2), (0, 0, 0, 1))
+    centre = (slice(40, 80), slice(50, 110))  # where the robot is in the first frame
     moved = env.render()
-    assert np.abs(moved.astype(int) - frame.astype(int)).mean() < 40
+    followed = np.abs(moved.astype(int) - frame.astype(int))[centre].mean()
+    # Negative control: a camera left where it was sees the robot gone from the centre.
+    fixed = env.sim.render(start, 160, 120, env.camera_distance, 0.0, -30.0)
+    left_behind = np.abs(fixed.astype(int) - frame.astype(int))[centre].mean()
+    assert followed < 20 < left_behind
     env.close()
 
 
@@ -280,9 +326,12 @@ def test_bad_actions_raise_value_error(env, action, message):
         env.step(action)
 
 
-def test_classic_action_tolerance_is_accepted(env):
+def test_classic_action_tolerance_is_accepted_and_no_more(env):
     env.reset(seed=0)
-    env.step(np.full(8, 1.01))
+    obs, *_ = env.step(np.full(8, 1.01, np.float32))
+    assert obs.shape == (28,) and np.isfinite(obs).all()
+    with pytest.raises(ValueError, match=r"action\[0\] = 1\.0199.* outside \[-1, 1\]"):
+        env.step(np.full(8, 1.02, np.float32))
 
 
 def test_step_before_reset_raises(env):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import time
+import os
 from pathlib import Path
 
 import numpy as np
@@ -134,14 +134,15 @@ def test_default_policy_is_the_best_shipped_one_else_the_latest_run(tmp_path, mo
 
     monkeypatch.setattr(evaluation, "PRETRAINED_DIR", tmp_path / "nothing-shipped")
     monkeypatch.chdir(tmp_path)
-    for n in (1, 2):
+    for n, written_at in ((1, 2_000_000_000), (2, 1_000_000_000)):
         run = tmp_path / "logs" / "sac" / f"MinitaurBulletEnv-v0_{n}"
         run.mkdir(parents=True)
         (run / "config.yml").write_text("algo: sac\n")
+        os.utime(run / "config.yml", (written_at, written_at))
         (run / "best_model.zip").write_bytes(b"")
-        time.sleep(0.05)  # the newest config.yml marks the latest run
+    # The latest run is the one whose config.yml was written last, not the highest number.
     assert evaluation.find_model(None, None, None) == Path(
-        "logs/sac/MinitaurBulletEnv-v0_2/best_model.zip"
+        "logs/sac/MinitaurBulletEnv-v0_1/best_model.zip"
     )
 
 

@@ -13,9 +13,9 @@ import yaml
 from stable_baselines3 import PPO, SAC
 
 from minitaur_env.training import UsageError
-from minitaur_env.training.config import load_model
+from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.video import read_video
-from tests.scripts import TINY, error_lines, run_script, start_script
+from tests.scripts import REPO, TINY, error_lines, run_script, start_script
 
 FAST_SAC = [
     "--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32",
@@ -101,8 +101,7 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
     assert action.shape == (8,)
     (run / "checkpoints" / "rl_model_200_steps.zip").unlink()  # as if killed before it
-    (run / "config.yml").write_text((run / "config.yml").read_text().replace("200", "250"))
-    resumed = run_script("train.py", "--resume", str(run), cwd=tmp_path)
+    resumed = run_script("train.py", "--resume", str(run), "-n", "250", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
     assert "for 100 steps (from 150)" in resumed.stdout
     final = load_model(sbx.SAC, run / "final_model.zip")
@@ -186,26 +185,139 @@ def test_ctrl_c_saves_model_and_replay_buffer(tmp_path):
     )
 
 
+# PPO's envs in 3 processes, more than this 2-core machine has: the common user machine.
+THREE_PROCESSES = ["--algo", "ppo", "--n-envs", "6", "--vec-env", "grouped",
+                   "--hyperparams", "n_steps=32", "batch_size=32"]  # fmt: skip
+
+
+BROKEN_IN_WORKERS = """
+import multiprocessing
+import gymnasium as gym
+
+
+class BrokenInWorkers(gym.Wrapper):
+    def __init__(self):
+        super().__init__(gym.make("Pendulum-v1"))
+        self.steps = 0
+
+    def step(self, action):
+        self.steps += 1
+        if self.steps == 30 and multiprocessing.parent_process() is not None:
+            raise RuntimeError("motor driver fault")
+        return super().step(action)
+
+
+gym.register("BrokenInWorkers-v0", entry_point=BrokenInWorkers, max_episode_steps=200)
+"""
+
+
+def assert_process_group_ends(group: int, timeout: float = 10) -> None:
+    """No worker outlives the trainer (dead ones wait to be reaped by init for a moment)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(group, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"processes of group {group} still alive after {timeout} s")
+
+
+def start_with_three_worker_processes(tmp_path, *args, setup=""):
+    """train.py with available_cores() forced to 3, so 6 envs get 2 worker processes."""
+    launcher = tmp_path / "train_on_3_cores.py"
+    launcher.write_text(
+        f"import sys\nsys.path.insert(0, {str(REPO)!r})\n{setup}\n"
+        "from minitaur_env.training import envs, vec_env\n"
+        "envs.available_cores = vec_env.available_cores = lambda: 3\n"
+        "import train\n"
+        "if __name__ == '__main__':\n"
+        "    sys.exit(train.main())\n"
+    )
+    return start_script(str(launcher), *args, cwd=tmp_path, own_process_group=True)
+
+
 @pytest.mark.parametrize(
-    "args",
+    ("how", "code"),
     [
-        ["--algo", "ppo", "--n-envs", "4", "--hyperparams", "n_steps=32", "batch_size=32"],
-        ["--overlap-updates", *FAST_SAC],
-        ["--vec-env", "subproc", *FAST_SAC],
+        ("ctrl-c to the group", 130),
+        ("sigterm to the group", 143),
+        ("sigterm to the trainer", 143),
     ],
-    ids=["ppo-grouped-envs", "sac-overlapped", "sac-subproc"],
 )
-def test_terminal_ctrl_c_with_worker_processes_still_saves(tmp_path, args):
-    process = start_script(
-        "train.py", "-n", "100000", "--eval-freq", "0", "--save-freq", "100", *args, *TINY,
-        cwd=tmp_path, own_process_group=True,
+def test_ctrl_c_and_sigterm_with_worker_processes_save_a_checkpoint(tmp_path, how, code):
+    process = start_with_three_worker_processes(
+        tmp_path, "-n", "100000", "--eval-freq", "0", "--save-freq", "96", *THREE_PROCESSES,
+        *TINY,
     )  # fmt: skip
-    _wait_for("logs/*/*/checkpoints/rl_model_100_steps.zip", tmp_path)
+    _wait_for("logs/ppo/*/checkpoints/rl_model_96_steps.zip", tmp_path)
     time.sleep(1.0)
-    os.killpg(process.pid, signal.SIGINT)  # the trainer and its workers, like Ctrl-C
+    started = time.monotonic()
+    if how == "ctrl-c to the group":
+        os.killpg(process.pid, signal.SIGINT)
+    elif how == "sigterm to the group":
+        os.killpg(process.pid, signal.SIGTERM)  # Slurm, a container stop
+    else:
+        process.send_signal(signal.SIGTERM)  # timeout, Ray, kill
     _, stderr = process.communicate(timeout=60)
-    assert process.returncode == 130, stderr
-    assert "interrupted: saved" in stderr and "Traceback" not in stderr
+    assert time.monotonic() - started < 20
+    assert process.returncode == code, stderr
+    assert "interrupted: saved" in stderr and "--resume" in stderr and "Traceback" not in stderr
+    assert_process_group_ends(process.pid)
+    run = run_dir_of(tmp_path, "ppo")
+    steps = int(stderr.split("rl_model_")[1].split("_steps")[0])
+    assert PPO.load(run / "checkpoints" / f"rl_model_{steps}_steps.zip").num_timesteps == steps
+
+
+def test_sigterm_without_workers_saves_model_and_replay_buffer(tmp_path):
+    args = ["-n", "100000", *FAST_SAC, "--eval-freq", "0", "--save-freq", "100", *TINY]
+    process = start_script("train.py", *args, cwd=tmp_path)
+    _wait_for("logs/sac/*/checkpoints/rl_model_100_steps.zip", tmp_path)
+    time.sleep(1.0)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 143, stderr
+    steps = int(stderr.split("rl_model_")[1].split("_steps")[0])
+    assert (
+        run_dir_of(tmp_path) / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.pkl"
+    ).exists()
+
+
+def test_an_env_failing_in_a_worker_ends_the_run_with_one_line_and_a_checkpoint(tmp_path):
+    process = start_with_three_worker_processes(
+        tmp_path, "--env", "BrokenInWorkers-v0", "-n", "2000", "--eval-freq", "0",
+        "--save-freq", "1000", *THREE_PROCESSES, "-v", "0", setup=BROKEN_IN_WORKERS,
+    )  # fmt: skip
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 1, stderr
+    assert error_lines(stderr) == [
+        "train.py: error: env 2 raised RuntimeError: motor driver fault; "
+        "saved logs/ppo/BrokenInWorkers-v0_1/checkpoints/rl_model_174_steps.zip "
+        "(resume with --resume logs/ppo/BrokenInWorkers-v0_1)"
+    ]
+
+
+def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
+    args = ["-n", "100", *FAST_SAC, "--eval-freq", "0", "--save-freq", "50", *TINY]
+    assert run_script("train.py", *args, cwd=tmp_path).returncode == 0
+    run = str(run_dir_of(tmp_path))
+    for flags, message in (
+        (["--seed", "3"], "seed 3 contradicts the run's saved seed 0"),
+        (["--hyperparams", "batch_size=64"], "hyperparams.batch_size 64 contradicts"),
+        (["--env-kwargs", "energy_weight=0.1"], "env_kwargs.energy_weight 0.1 contradicts"),
+        (["--config", "tutorial"], "--config cannot be combined with --resume"),
+    ):
+        refused = run_script("train.py", "--resume", run, *flags, cwd=tmp_path)
+        assert refused.returncode == 2 and error_lines(refused) == [
+            line for line in error_lines(refused) if message in line
+        ], refused.stderr
+    extended = run_script(
+        "train.py", "--resume", run, "-n", "150", "--seed", "0", "--num-threads", "1",
+        "-v", "0", cwd=tmp_path,
+    )  # fmt: skip
+    assert extended.returncode == 0, extended.stderr
+    assert "for 50 steps (from 100)" in extended.stdout
+    assert load_model(SAC, run_dir_of(tmp_path) / "final_model.zip").num_timesteps == 150
 
 
 def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
@@ -260,8 +372,7 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
         (["--hyperparams", "novalue"], "expects key=value"),
         (["--resume", "{tmp}/missing-run"], "no config.yml"),
         (["--env-kwargs", "energy_weight=-1"], "energy_weight must be finite and >= 0"),
-        (["--algo", "ppo", "--overlap-updates"], "needs an off-policy algorithm, not ppo"),
-        (["--overlap-updates", "--vec-env", "dummy"], "drop --vec-env"),
+        (["--vec-env", "subproc"], "invalid choice: 'subproc'"),
         (["--vec-env", "threads"], "invalid choice: 'threads'"),
     ],
 )
@@ -291,7 +402,7 @@ def test_eval_env_normalizes_observations_as_training_does():
 
 
 def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
-    from minitaur_env.training.config import load_hyperparams
+    from minitaur_env.training.hyperparams import load_hyperparams
 
     tuned = load_hyperparams("sac", "MinitaurBulletEnv-v0")
     tutorial = load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="tutorial")
@@ -307,10 +418,10 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
 def test_runs_started_together_get_their_own_folders(tmp_path):
     from concurrent.futures import ThreadPoolExecutor
 
-    from minitaur_env.training.runs import new_run_dir
+    from minitaur_env.training.run_folder import RunFolder
 
     def start(_):
-        return new_run_dir(tmp_path / "logs", "tqc", "MinitaurBulletEnv-v0")
+        return RunFolder.create(tmp_path / "logs", "tqc", "MinitaurBulletEnv-v0").path
 
     for _ in range(5):
         with ThreadPoolExecutor(8) as pool:

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import time
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -10,8 +14,9 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from minitaur_env.training import envs
 from minitaur_env.training.envs import make_training_env
-from minitaur_env.training.vec_env import GroupedSubprocVecEnv
+from minitaur_env.training.vec_env import EnvWorkerError, GroupedSubprocVecEnv
 
 
 def dict_cartpole() -> gym.Env:
@@ -79,10 +84,12 @@ def test_minitaur_runs_grouped_like_in_one_process():
     single.close()
 
 
-def test_auto_groups_several_envs_and_keeps_one_in_process():
+@pytest.mark.parametrize("cores", [1, 2, 8])
+def test_auto_groups_several_envs_on_several_cores_and_keeps_one_in_process(monkeypatch, cores):
+    monkeypatch.setattr(envs, "available_cores", lambda: cores)
     several = make_training_env("CartPole-v1", n_envs=2, seed=0)
     one = make_training_env("CartPole-v1", n_envs=1, seed=0)
-    assert isinstance(several.venv, GroupedSubprocVecEnv)
+    assert isinstance(several.venv, GroupedSubprocVecEnv if cores > 1 else DummyVecEnv)
     assert isinstance(one.venv, DummyVecEnv)
     several.close()
     one.close()
@@ -120,3 +127,94 @@ def test_rejects_bad_sizes():
         GroupedSubprocVecEnv([])
     with pytest.raises(ValueError, match="n_processes must be at least 1"):
         GroupedSubprocVecEnv([lambda: gym.make("CartPole-v1")], n_processes=-1)
+
+
+# -- failures, with more worker processes than this machine has cores ------------------
+
+
+class FailsAtStep(gym.Wrapper):
+    """CartPole that raises RuntimeError at its ``fail_at``-th step (never if None)."""
+
+    def __init__(self, fail_at: int | None = None, hang: bool = False) -> None:
+        super().__init__(gym.make("CartPole-v1"))
+        self.fail_at, self.hang, self.steps = fail_at, hang, 0
+
+    def step(self, action):
+        self.steps += 1
+        if self.steps == self.fail_at:
+            if self.hang:
+                time.sleep(3600)
+            raise RuntimeError(f"boom at step {self.steps}")
+        return super().step(action)
+
+
+def failing_envs(index: int, n_envs: int = 6, **kwargs):
+    return [
+        (lambda i=i: Monitor(FailsAtStep(30 if i == index else None, **kwargs)))
+        for i in range(n_envs)
+    ]
+
+
+def step_until_error(vec, steps=100):
+    vec.reset()
+    for _ in range(steps):
+        vec.step(np.zeros(vec.num_envs, dtype=int))
+
+
+@pytest.mark.parametrize("index", [4, 0], ids=["in-a-worker", "in-the-calling-process"])
+def test_an_env_exception_names_the_env_and_close_returns(index):
+    vec = GroupedSubprocVecEnv(failing_envs(index), n_processes=3)
+    assert len(vec.processes) == 2  # 3 processes on this 2-core machine, forced
+    with pytest.raises(
+        EnvWorkerError, match=rf"^env {index} raised RuntimeError: boom at step 30$"
+    ):
+        step_until_error(vec)
+    started = time.monotonic()
+    vec.close()
+    assert time.monotonic() - started < 5
+    assert not any(process.is_alive() for process in vec.processes)
+
+
+def test_a_dead_worker_is_reported_not_waited_for():
+    vec = GroupedSubprocVecEnv(failing_envs(-1), n_processes=3)
+    vec.reset()
+    os.kill(vec.processes[1].pid, signal.SIGKILL)
+    with pytest.raises(EnvWorkerError, match=r"worker process of envs 4\.\.5 exited"):
+        step_until_error(vec)
+    started = time.monotonic()
+    vec.close()
+    assert time.monotonic() - started < 5
+
+
+def test_close_never_blocks_on_unread_answers_or_a_stuck_env():
+    # Actions sent and answers never read, as when Ctrl-C lands inside step_wait.
+    vec = GroupedSubprocVecEnv(failing_envs(-1), n_processes=3)
+    vec.reset()
+    vec.step_async(np.zeros(6, dtype=int))
+    vec._receive(0)  # one worker answered, the other did not
+    started = time.monotonic()
+    vec.close()
+    assert time.monotonic() - started < 5
+
+    stuck = GroupedSubprocVecEnv(failing_envs(5, hang=True), n_processes=3, close_timeout=1.0)
+    stuck.reset()
+    for _ in range(29):
+        stuck.step(np.zeros(6, dtype=int))
+    stuck.step_async(np.zeros(6, dtype=int))  # env 5 never returns from its 30th step
+    started = time.monotonic()
+    stuck.close()
+    assert time.monotonic() - started < 4
+    assert not any(process.is_alive() for process in stuck.processes)
+
+
+def test_workers_leave_ctrl_c_and_sigterm_to_the_caller():
+    vec = GroupedSubprocVecEnv(failing_envs(-1), n_processes=3)
+    vec.reset()
+    for process in vec.processes:
+        os.kill(process.pid, signal.SIGINT)
+        os.kill(process.pid, signal.SIGTERM)
+    time.sleep(0.5)
+    assert all(process.is_alive() for process in vec.processes)
+    obs, *_ = vec.step(np.zeros(6, dtype=int))  # still serving
+    assert obs.shape == (6, 4)
+    vec.close()

@@ -1,4 +1,4 @@
-"""Callbacks SB3 lacks: a policy-video recorder and a divergence guard."""
+"""Callbacks SB3 lacks: checked checkpoints, a divergence guard and a policy-video recorder."""
 
 from __future__ import annotations
 
@@ -9,29 +9,23 @@ from typing import Any
 
 import numpy as np
 import torch
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import unwrap_vec_normalize
 
+from minitaur_env.training import TrainingDiverged
 from minitaur_env.training.envs import make_env
+from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.video import record_video
 
 
-class TrainingDiverged(RuntimeError):
-    """A loss, an action or a network weight became NaN or infinite."""
-
-
 class DivergenceGuardCallback(BaseCallback):
-    """Stop training at the first non-finite loss, action or weight.
+    """Stop training at the first non-finite loss or action.
 
-    Losses are read from the logger after every update; weights are checked every
-    ``check_freq`` steps, which should be placed before the checkpoint callback so a
-    diverged model is never saved over a good checkpoint.
+    Losses are read from the logger after every update. Weights are checked by
+    :func:`save_checked_checkpoint` before every checkpoint is written.
     """
-
-    def __init__(self, check_freq: int, verbose: int = 0) -> None:
-        super().__init__(verbose)
-        self.check_freq = max(1, check_freq)
-        self._last_check = 0
 
     def _on_step(self) -> bool:
         for key, value in self.logger.name_to_value.items():
@@ -40,17 +34,61 @@ class DivergenceGuardCallback(BaseCallback):
         actions = self.locals.get("actions")
         if actions is not None and not np.all(np.isfinite(actions)):
             raise TrainingDiverged(f"the policy produced a NaN action at step {self.num_timesteps}")
-        if self.num_timesteps - self._last_check >= self.check_freq:
-            self._last_check = self.num_timesteps
-            self.check_weights()
         return True
 
-    def check_weights(self) -> None:
-        for name, finite in _weights_finite(self.model.policy):
-            if not finite:
-                raise TrainingDiverged(
-                    f"weight {name} became non-finite at step {self.num_timesteps}"
-                )
+
+def check_weights(model: BaseAlgorithm) -> None:
+    """Raise TrainingDiverged naming the first non-finite weight of the model's policy."""
+    for name, finite in _weights_finite(model.policy):
+        if not finite:
+            raise TrainingDiverged(f"weight {name} became non-finite at step {model.num_timesteps}")
+
+
+def weights_finite(model: BaseAlgorithm) -> bool:
+    return all(finite for _, finite in _weights_finite(model.policy))
+
+
+def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:
+    """Check the weights, then save model, replay buffer and VecNormalize at the model's step.
+
+    A diverged model raises TrainingDiverged before anything is written, so the
+    checkpoints on disk are always usable.
+    """
+    check_weights(model)
+    steps = model.num_timesteps
+    run.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+    path = run.checkpoint(steps)
+    model.save(path)
+    if isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
+        model.save_replay_buffer(run.replay_buffer(steps))
+        run.prune_replay_buffers()
+    normalizer = unwrap_vec_normalize(model.get_env())
+    if normalizer is not None:
+        normalizer.save(str(run.vecnormalize(steps)))
+    return path
+
+
+class CheckpointEveryCallback(BaseCallback):
+    """A checked checkpoint each time the step count passes a multiple of ``save_freq``.
+
+    Counting the model's own steps (not this callback's calls) keeps checkpoints on
+    the same multiples after a resume and whatever the number of envs.
+    """
+
+    def __init__(self, run: RunFolder, save_freq: int) -> None:
+        super().__init__()
+        self.run = run
+        self.save_freq = save_freq
+        self._next = 0
+
+    def _init_callback(self) -> None:
+        self._next = (self.model.num_timesteps // self.save_freq + 1) * self.save_freq
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            save_checked_checkpoint(self.model, self.run)
+            self._next = (self.num_timesteps // self.save_freq + 1) * self.save_freq
+        return True
 
 
 def _weights_finite(policy: Any) -> list[tuple[str, bool]]:
@@ -140,29 +178,6 @@ class VideoRecorderCallback(BaseCallback):
         if self._env is not None:
             self._env.close()
             self._env = None
-
-
-class LeanCheckpointCallback(CheckpointCallback):
-    """SB3's CheckpointCallback that keeps only the two newest replay buffers.
-
-    Model zips are small and all kept; a replay buffer of 1M transitions is hundreds
-    of MB. Two are kept so that a resume still finds the buffer matching the previous
-    checkpoint when a kill tore the newest one.
-    """
-
-    keep_buffers = 2
-
-    def _on_step(self) -> bool:
-        saved = self.n_calls % self.save_freq == 0
-        result = super()._on_step()
-        if saved and self.save_replay_buffer:
-            pattern = f"{self.name_prefix}_replay_buffer_*_steps.pkl"
-            buffers = sorted(
-                Path(self.save_path).glob(pattern), key=lambda p: int(p.stem.split("_")[-2])
-            )
-            for old in buffers[: -self.keep_buffers]:
-                old.unlink(missing_ok=True)
-        return result
 
 
 class SaveVecNormalizeCallback(BaseCallback):

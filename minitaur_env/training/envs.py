@@ -14,20 +14,25 @@ from stable_baselines3.common.vec_env import (
 )
 
 import minitaur_env  # noqa: F401  (registers the Minitaur ids)
-from minitaur_env.training import UsageError
-from minitaur_env.training.config import VEC_ENVS
-from minitaur_env.training.pipeline import OverlappingVecEnv
-from minitaur_env.training.vec_env import (
-    GroupedSubprocVecEnv,
-    SubprocVecEnvIgnoringCtrlC,
-    available_cores,
-)
+from minitaur_env.training import TrainingDiverged, UsageError
+from minitaur_env.training.vec_env import GroupedSubprocVecEnv, available_cores
 
-VEC_ENV_CLASSES = {
-    "dummy": DummyVecEnv,
-    "subproc": SubprocVecEnvIgnoringCtrlC,
-    "grouped": GroupedSubprocVecEnv,
-}
+# "auto": several envs grouped over the CPU cores, a single env in the calling process.
+VEC_ENVS = ("auto", "dummy", "grouped")
+VEC_ENV_CLASSES = {"dummy": DummyVecEnv, "grouped": GroupedSubprocVecEnv}
+
+
+class NanGuard(VecCheckNan):
+    """SB3's VecCheckNan, raising TrainingDiverged so that callers can tell it by type."""
+
+    def __init__(self, venv: VecEnv) -> None:
+        super().__init__(venv, raise_exception=True)
+
+    def _check_val(self, event: str, **kwargs: Any) -> None:
+        try:
+            super()._check_val(event, **kwargs)
+        except ValueError as error:
+            raise TrainingDiverged(" ".join(str(error).split())) from None
 
 
 def qualified_env_id(env_id: str) -> str:
@@ -63,13 +68,9 @@ def make_training_env(
     vec_env: str = "auto",
     monitor_dir: str | None = None,
     append_monitor: bool = False,
-    overlap_updates: bool = False,
 ) -> VecEnv:
-    """Monitored, vectorized env that raises as soon as a NaN reaches it or leaves it.
-
-    ``overlap_updates`` steps the envs in an :class:`OverlappingVecEnv`, where an
-    algorithm from :func:`minitaur_env.training.pipeline.overlapped` trains while the
-    envs step.
+    """Monitored, vectorized env that raises TrainingDiverged as soon as a NaN reaches it
+    or leaves it.
 
     ``vec_env="auto"`` runs several envs grouped over the CPU cores (the same
     transitions as a DummyVecEnv, faster) and a single env in this process.
@@ -87,9 +88,9 @@ def make_training_env(
         env_kwargs=env_kwargs or {},
         monitor_dir=monitor_dir,
         monitor_kwargs={"override_existing": not append_monitor},
-        vec_env_cls=OverlappingVecEnv if overlap_updates else VEC_ENV_CLASSES[vec_env],
+        vec_env_cls=VEC_ENV_CLASSES[vec_env],
     )
-    return VecCheckNan(env, raise_exception=True)
+    return NanGuard(env)
 
 
 def make_eval_env(
@@ -110,7 +111,7 @@ def make_eval_env(
     make_env(env_id, kwargs).close()
     env = make_vec_env(qualified_env_id(env_id), n_envs=1, seed=seed, env_kwargs=kwargs)
     # The same wrapper stack as training, which SB3's normalization sync walks in step.
-    env = VecCheckNan(env, raise_exception=True)
+    env = NanGuard(env)
     if normalize:
         options = dict(normalize) if isinstance(normalize, dict) else {}
         options.update(training=False, norm_reward=False)

@@ -16,8 +16,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
 from minitaur_env.training import UsageError
-from minitaur_env.training.config import ALGORITHMS, algorithm_class, load_model
-from minitaur_env.training.runs import checkpoints, run_dirs, vecnormalize_path
+from minitaur_env.training.algorithms import ALGORITHMS, algorithm_class, load_model
+from minitaur_env.training.run_folder import RunFolder, load_pickle
 
 REWARD_TERMS = ("reward_forward", "reward_energy", "reward_drift", "reward_shake")
 PRETRAINED_DIR = Path(__file__).resolve().parents[2] / "pretrained"
@@ -61,13 +61,11 @@ def infer_algo(path: Path) -> tuple[str, str]:
 
 
 def _normalizer_for(model_path: Path) -> Path | None:
-    """The VecNormalize statistics saved beside a model, if any."""
-    candidates = [model_path.with_name(f"{model_path.stem}_vecnormalize.pkl")]
-    if model_path.parent.name == "checkpoints":
-        steps = model_path.stem.split("_")[-2]
-        if steps.isdigit():
-            candidates.append(vecnormalize_path(model_path.parents[1], int(steps)))
-    return next((c for c in candidates if c.is_file()), None)
+    """The VecNormalize statistics saved beside a model (or with its checkpoint), if any."""
+    run = RunFolder(
+        model_path.parents[1] if model_path.parent.name == "checkpoints" else model_path.parent
+    )
+    return run.vecnormalize_for(model_path)
 
 
 def _run_config(model_path: Path) -> dict[str, Any]:
@@ -97,8 +95,7 @@ def load_policy(model_path: Path, algo: str | None = None, device: str = "auto")
     stats = _normalizer_for(model_path)
     normalizer = None
     if stats is not None:
-        with stats.open("rb") as handle:
-            normalizer = pickle.load(handle)
+        normalizer = load_pickle(stats)
         normalizer.training = False
         normalizer.norm_reward = False
     return LoadedPolicy(
@@ -149,7 +146,7 @@ def find_model(
     runs = []
     for algo_name in [algo] if algo else list(ALGORITHMS):
         if env_id:
-            runs += run_dirs(root, algo_name, env_id)
+            runs += [run.path for run in RunFolder.all(root, algo_name, env_id)]
         elif (root / algo_name).is_dir():
             runs += [p for p in (root / algo_name).iterdir() if (p / "config.yml").is_file()]
     if not runs:
@@ -167,16 +164,16 @@ def find_model(
     else:
         run = max(runs, key=lambda r: (r / "config.yml").stat().st_mtime)
     if load_checkpoint is not None:
-        path = run / "checkpoints" / f"rl_model_{load_checkpoint}_steps.zip"
+        path = RunFolder(run).checkpoint(load_checkpoint)
     elif load_last_checkpoint:
-        found = checkpoints(run)
+        found = RunFolder(run).checkpoints()
         if not found:
             raise UsageError(f"{run} has no checkpoint")
         path = found[0][1]
     elif load_best:
-        path = run / "best_model.zip"
+        path = RunFolder(run).best_model
     else:
-        path = run / "final_model.zip"
+        path = RunFolder(run).final_model
     if not path.is_file():
         raise UsageError(f"model file not found: {path}")
     return path

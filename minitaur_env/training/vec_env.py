@@ -14,17 +14,19 @@ the same transitions as a ``DummyVecEnv`` of all the envs.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import multiprocessing as mp
 import os
 import signal
+import time
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import (
     CloudpickleWrapper,
     VecEnvIndices,
@@ -33,55 +35,93 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 )
 
 
-def _leave_ctrl_c_to_the_caller() -> None:
-    # A terminal's Ctrl-C reaches every process of the group. A worker that died of it
-    # would break the caller's pipe while the caller saves a checkpoint and closes.
+class EnvWorkerError(RuntimeError):
+    """An env of a GroupedSubprocVecEnv raised, or a worker process died."""
+
+
+def _leave_signals_to_the_caller() -> None:
+    # A terminal's Ctrl-C, or a SIGTERM sent to the whole process group (Slurm, a
+    # container stop), reaches every process. A worker that died of it would break
+    # the caller's pipe while the caller saves a checkpoint; the caller ends the
+    # workers itself when it closes.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
-class _IgnoringCtrlC:
-    """An env function that first makes its (worker) process ignore Ctrl-C."""
+class _TagsErrorsWithIndex(gym.Wrapper):
+    """Marks any exception of the wrapped env with the env's index in the VecEnv."""
 
-    def __init__(self, env_fn: Callable[[], gym.Env]) -> None:
+    def __init__(self, env: gym.Env, index: int) -> None:
+        super().__init__(env)
+        self.vec_env_index = index
+
+    def step(self, action: Any) -> Any:
+        try:
+            return self.env.step(action)
+        except Exception as error:
+            error.env_index = getattr(error, "env_index", self.vec_env_index)  # type: ignore[attr-defined]
+            raise
+
+    def reset(self, **kwargs: Any) -> Any:
+        try:
+            return self.env.reset(**kwargs)
+        except Exception as error:
+            error.env_index = getattr(error, "env_index", self.vec_env_index)  # type: ignore[attr-defined]
+            raise
+
+
+class _Indexed:
+    """An env function whose env reports its index with any exception it raises."""
+
+    def __init__(self, env_fn: Callable[[], gym.Env], index: int) -> None:
         self.env_fn = env_fn
+        self.index = index
 
     def __call__(self) -> gym.Env:
-        _leave_ctrl_c_to_the_caller()
-        return self.env_fn()
+        try:
+            env = self.env_fn()
+        except Exception as error:
+            error.env_index = self.index  # type: ignore[attr-defined]
+            raise
+        return _TagsErrorsWithIndex(env, self.index)
 
 
-class SubprocVecEnvIgnoringCtrlC(SubprocVecEnv):
-    """SB3's SubprocVecEnv, with workers that leave Ctrl-C to the calling process."""
-
-    def __init__(
-        self, env_fns: list[Callable[[], gym.Env]], start_method: str | None = None
-    ) -> None:
-        super().__init__([_IgnoringCtrlC(fn) for fn in env_fns], start_method)
+def _describe(error: BaseException) -> str:
+    index = getattr(error, "env_index", None)
+    where = f"env {index}" if index is not None else "an env"
+    return f"{where} raised {type(error).__name__}: {error}"
 
 
 def _group_worker(
     remote: Connection, parent_remote: Connection, env_fns: CloudpickleWrapper
 ) -> None:
-    _leave_ctrl_c_to_the_caller()
+    _leave_signals_to_the_caller()
     parent_remote.close()
-    group = DummyVecEnv(env_fns.var)
+    group = None
     try:
+        group = DummyVecEnv(env_fns.var)
+        remote.send(("ready", None))
         while True:
             command, data = remote.recv()
             if command == "step":
-                remote.send((*group.step(data), group.reset_infos))
+                remote.send(("ok", (*group.step(data), group.reset_infos)))
             elif command == "reset":
                 _prepare_reset(group, *data)
-                remote.send((group.reset(), group.reset_infos))
+                remote.send(("ok", (group.reset(), group.reset_infos)))
             elif command == "call":
                 name, args, kwargs = data
-                remote.send(getattr(group, name)(*args, **kwargs))
+                remote.send(("ok", getattr(group, name)(*args, **kwargs)))
             elif command == "close":
-                group.close()
-                remote.send(None)
                 return
-    except EOFError:  # the caller went away without closing us
-        group.close()
+    except (EOFError, BrokenPipeError, KeyboardInterrupt):  # the caller went away
+        return
+    except Exception as error:
+        # The caller gets one line naming the env; the worker then exits.
+        with contextlib.suppress(BrokenPipeError, OSError):
+            remote.send(("error", _describe(error)))
+    finally:
+        if group is not None:
+            group.close()
 
 
 def _prepare_reset(group: DummyVecEnv, seeds: list[int | None], options: list[dict]) -> None:
@@ -116,9 +156,15 @@ class GroupedSubprocVecEnv(VecEnv):
     """``n_envs`` envs in ``n_processes`` processes; the first group runs in this one.
 
     ``n_processes`` defaults to the CPU cores available, capped at the number of envs.
-    ``n_processes=1`` is a ``DummyVecEnv`` in all but name. As with ``SubprocVecEnv``,
-    the env functions must be picklable and the calling script needs an
-    ``if __name__ == "__main__":`` guard (workers start with forkserver or spawn).
+    ``n_processes=1`` is a ``DummyVecEnv`` in all but name.
+
+    An exception in any env reaches the caller as one :class:`EnvWorkerError` naming the
+    env's index and the original exception, as does a worker that dies. Workers ignore
+    Ctrl-C and SIGTERM, which are the caller's to handle; ``close()`` asks them to stop
+    and ends any that has not within ``close_timeout`` seconds, so it never blocks.
+
+    As with ``SubprocVecEnv``, the env functions must be picklable and the calling script
+    needs an ``if __name__ == "__main__":`` guard (workers start with forkserver or spawn).
     """
 
     def __init__(
@@ -126,6 +172,7 @@ class GroupedSubprocVecEnv(VecEnv):
         env_fns: list[Callable[[], gym.Env]],
         n_processes: int | None = None,
         start_method: str | None = None,
+        close_timeout: float = 10.0,
     ) -> None:
         if not env_fns:
             raise ValueError("GroupedSubprocVecEnv needs at least one env")
@@ -139,8 +186,11 @@ class GroupedSubprocVecEnv(VecEnv):
             start_method = "forkserver" if "forkserver" in methods else "spawn"
         context = mp.get_context(start_method)
 
+        env_fns = [_Indexed(fn, index) for index, fn in enumerate(env_fns)]
+        self.close_timeout = close_timeout
         self.remotes: list[Connection] = []
         self.processes: list[Any] = []
+        self.closed = False
         for group in self.groups[1:]:
             remote, work_remote = context.Pipe()
             fns = CloudpickleWrapper([env_fns[i] for i in group])
@@ -151,23 +201,64 @@ class GroupedSubprocVecEnv(VecEnv):
             work_remote.close()
             self.remotes.append(remote)
             self.processes.append(process)
-        self.local = DummyVecEnv([env_fns[i] for i in self.groups[0]])
-        self.waiting = False
-        self.closed = False
+        self._unread = [1] * len(self.remotes)  # each worker's "ready"
+        self.local: DummyVecEnv | None = None
+        try:
+            self.local = self._local(DummyVecEnv, [env_fns[i] for i in self.groups[0]])
+            for number in range(len(self.remotes)):
+                self._receive(number)  # "ready", or the error that stopped the worker
+        except BaseException:
+            self.close()
+            raise
         super().__init__(len(env_fns), self.local.observation_space, self.local.action_space)
+
+    # -- talking to the workers --------------------------------------------------
+    def _send(self, number: int, message: tuple[str, Any]) -> None:
+        while self._unread[number]:  # an answer left unread when an error cut a step short
+            self._receive(number)
+        try:
+            self.remotes[number].send(message)
+        except (BrokenPipeError, OSError) as error:
+            raise self._worker_died(number) from error
+        self._unread[number] += 1
+
+    def _receive(self, number: int) -> Any:
+        try:
+            status, payload = self.remotes[number].recv()
+        except (EOFError, OSError) as error:
+            self._unread[number] = 0
+            raise self._worker_died(number) from error
+        self._unread[number] -= 1
+        if status == "error":
+            raise EnvWorkerError(payload)
+        return payload
+
+    def _worker_died(self, number: int) -> EnvWorkerError:
+        process = self.processes[number]
+        process.join(timeout=1.0)
+        group = self.groups[number + 1]
+        return EnvWorkerError(
+            f"the worker process of envs {group.start}..{group.stop - 1} exited "
+            f"(exit code {process.exitcode})"
+        )
+
+    def _local(self, method: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        try:
+            return method(*args, **kwargs)
+        except Exception as error:
+            raise EnvWorkerError(_describe(error)) from error
 
     # -- stepping --------------------------------------------------------------
     def step_async(self, actions: np.ndarray) -> None:
-        for remote, group in zip(self.remotes, self.groups[1:], strict=True):
-            remote.send(("step", actions[group.start : group.stop]))
+        for number, group in enumerate(self.groups[1:]):
+            self._send(number, ("step", actions[group.start : group.stop]))
         self._local_actions = actions[self.groups[0].start : self.groups[0].stop]
-        self.waiting = True
 
     def step_wait(self) -> VecEnvStepReturn:
         # The local group steps while the workers step theirs.
-        results = [(*self.local.step(self._local_actions), self.local.reset_infos)]
-        results += [remote.recv() for remote in self.remotes]
-        self.waiting = False
+        local = self._local(self.local.step, self._local_actions)
+        results = [(*local, self.local.reset_infos)]
+        results += [self._receive(number) for number in range(len(self.remotes))]
         obs, rewards, dones, infos, reset_infos = zip(*results, strict=True)
         self.reset_infos = [info for part in reset_infos for info in part]
         return (
@@ -179,15 +270,16 @@ class GroupedSubprocVecEnv(VecEnv):
 
     def reset(self) -> VecEnvObs:
         seeds, options = self._seeds, self._options
-        for remote, group in zip(self.remotes, self.groups[1:], strict=True):
-            remote.send(
-                ("reset", (seeds[group.start : group.stop], options[group.start : group.stop]))
+        for number, group in enumerate(self.groups[1:]):
+            self._send(
+                number,
+                ("reset", (seeds[group.start : group.stop], options[group.start : group.stop])),
             )
         first = self.groups[0]
         self.local._seeds = seeds[first.start : first.stop]
         self.local._options = options[first.start : first.stop]
-        results = [(self.local.reset(), self.local.reset_infos)]
-        results += [remote.recv() for remote in self.remotes]
+        results = [(self._local(self.local.reset), self.local.reset_infos)]
+        results += [self._receive(number) for number in range(len(self.remotes))]
         obs, reset_infos = zip(*results, strict=True)
         self.reset_infos = [info for part in reset_infos for info in part]
         self._reset_seeds()
@@ -195,20 +287,23 @@ class GroupedSubprocVecEnv(VecEnv):
         return _concatenate(obs)
 
     def close(self) -> None:
+        """Stop every worker within ``close_timeout`` seconds, whatever it was doing."""
         if self.closed:
             return
-        if self.waiting:
-            for remote in self.remotes:
-                remote.recv()
+        self.closed = True
         for remote in self.remotes:
-            remote.send(("close", None))
-            remote.recv()
+            with contextlib.suppress(BrokenPipeError, OSError):  # unless already gone
+                remote.send(("close", None))
+        deadline = time.monotonic() + self.close_timeout
         for process in self.processes:
-            process.join()
+            process.join(timeout=max(0.0, deadline - time.monotonic()))
+            if process.is_alive():  # stuck in its env: it ignores SIGTERM, so kill it
+                process.kill()
+                process.join(timeout=5.0)
         for remote in self.remotes:
             remote.close()
-        self.local.close()
-        self.closed = True
+        if self.local is not None:
+            self.local.close()
 
     # -- per-env access ---------------------------------------------------------
     def _call(
@@ -227,14 +322,14 @@ class GroupedSubprocVecEnv(VecEnv):
                 continue
             group_kwargs = {**(kwargs or {}), "indices": local_indices}
             if number == 0:
-                result = getattr(self.local, name)(*args, **group_kwargs)
+                result = self._local(getattr(self.local, name), *args, **group_kwargs)
             else:
-                result = self.remotes[number - 1]
-                result.send(("call", (name, args, group_kwargs)))
+                self._send(number - 1, ("call", (name, args, group_kwargs)))
+                result = _FromWorker(number - 1)
             pending.append((group.start, local_indices, result))
         by_index: dict[int, Any] = {}
         for start, local_indices, result in pending:
-            values = result.recv() if isinstance(result, Connection) else result
+            values = self._receive(result.number) if isinstance(result, _FromWorker) else result
             # set_attr answers None for the whole group.
             values = [None] * len(local_indices) if values is None else values
             for local, value in zip(local_indices, values, strict=True):
@@ -262,9 +357,16 @@ class GroupedSubprocVecEnv(VecEnv):
         return self._call("env_is_wrapped", indices, (wrapper_class,))
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        images = list(self.local.get_images())
-        for remote in self.remotes:
-            remote.send(("call", ("get_images", (), {})))
-        for remote in self.remotes:
-            images += remote.recv()
+        images = list(self._local(self.local.get_images))
+        for number in range(len(self.remotes)):
+            self._send(number, ("call", ("get_images", (), {})))
+        for number in range(len(self.remotes)):
+            images += self._receive(number)
         return images
+
+
+class _FromWorker:
+    """An answer still to be read from worker ``number``."""
+
+    def __init__(self, number: int) -> None:
+        self.number = number

@@ -1,72 +1,18 @@
-"""Algorithms, hyperparameter files and ``key=value`` overrides."""
+"""Hyperparameter files (one YAML per algorithm, one entry per env id) and ``key=value``
+overrides."""
 
 from __future__ import annotations
 
-import warnings
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import yaml
-from stable_baselines3 import A2C, PPO, SAC, TD3
-from stable_baselines3.common.base_class import BaseAlgorithm
 
 from minitaur_env.training import UsageError
 
-try:
-    from sb3_contrib import TQC, CrossQ
-except ImportError:  # sb3-contrib is a dependency, but keep SB3's own algorithms usable
-    TQC = CrossQ = None
-
-BACKENDS = ("sb3", "sbx")
-# "auto": several envs grouped over the CPU cores, a single env in the calling process.
-VEC_ENVS = ("auto", "dummy", "subproc", "grouped")
-# The JAX implementations of the same algorithms by SB3's maintainers (pip install sbx-rl).
-SBX_ALGORITHMS = ("sac", "td3", "ppo", "tqc", "crossq")
-
-ALGORITHMS: dict[str, type[BaseAlgorithm] | None] = {
-    "sac": SAC,
-    "td3": TD3,
-    "ppo": PPO,
-    "a2c": A2C,
-    "tqc": TQC,
-    "crossq": CrossQ,
-}
-OFF_POLICY = {"sac", "td3", "tqc", "crossq"}
-
 # Keys of a hyperparameter entry that configure the run rather than the algorithm.
 RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "policy")
-
-
-def algorithm_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
-    if backend not in BACKENDS:
-        raise UsageError(f"unknown backend {backend!r}; choose from {', '.join(BACKENDS)}")
-    if name not in ALGORITHMS:
-        raise UsageError(f"unknown algorithm {name!r}; choose from {', '.join(ALGORITHMS)}")
-    if backend == "sbx":
-        if name not in SBX_ALGORITHMS:
-            raise UsageError(f"--backend sbx has no {name}; it has {', '.join(SBX_ALGORITHMS)}")
-        try:
-            import sbx
-        except ImportError as error:
-            raise UsageError("--backend sbx needs SBX: pip install 'minitaur-env[sbx]'") from error
-        return getattr(sbx, {"crossq": "CrossQ"}.get(name, name.upper()))
-    cls = ALGORITHMS[name]
-    if cls is None:
-        raise UsageError(f"--algo {name} needs sb3-contrib: pip install sb3-contrib")
-    return cls
-
-
-def load_model(cls: type[BaseAlgorithm], path: Path, **kwargs: Any) -> BaseAlgorithm:
-    """``cls.load``, without SB3's false alarm about n-step returns on reload.
-
-    A model saved with ``n_steps > 1`` stores ``NStepReplayBuffer`` with its n-step
-    kwargs; reloading it warns that ``n_steps`` is ignored although the saved kwargs
-    keep the n-step returns.
-    """
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
-        return cls.load(path, **kwargs)
 
 
 def hyperparams_file(algo: str) -> Path:

@@ -1,0 +1,224 @@
+"""A run folder (``logs/<algo>/<env>_<N>/``): the one place that knows its file names."""
+
+from __future__ import annotations
+
+import pickle
+import re
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from minitaur_env.training import UsageError
+
+CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
+_CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
+_REPLAY_BUFFER = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
+
+
+def env_folder_name(env_id: str) -> str:
+    return env_id.split(":")[-1]
+
+
+def ensure_writable(folder: Path) -> None:
+    """Create ``folder`` if needed and prove it is writable, or raise a UsageError."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        # A uniquely named probe: runs started together must not delete each other's.
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as error:
+        raise UsageError(f"cannot write to {folder}: {error.strerror or error}") from error
+
+
+class RunFolder:
+    """Every path of one training run, computed here and nowhere else.
+
+    ::
+
+        config.yml, command.txt        resolved configuration, command line(s)
+        evaluations.npz                EvalCallback: timesteps, results, ep_lengths
+        best_model.zip                 (+ best_model_vecnormalize.pkl)
+        final_model.zip                (+ final_model_vecnormalize.pkl)
+        checkpoints/                   rl_model_<N>_steps.zip, replay buffers, VecNormalize
+        monitor/<i>.monitor.csv        per-episode return/length of each training env
+        progress.csv                   SB3 logger (progress-resumed-at-<N>.csv after a resume)
+        learning_curve.png, videos/
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"RunFolder({str(self.path)!r})"
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, RunFolder) and other.path == self.path
+
+    def __hash__(self) -> int:
+        return hash(self.path)
+
+    # -- creating and finding runs ---------------------------------------------
+    @classmethod
+    def create(cls, log_folder: str | Path, algo: str, env_id: str) -> RunFolder:
+        """The next free ``<log_folder>/<algo>/<env>_<N>`` (N from 1), created now."""
+        parent = Path(log_folder) / algo
+        ensure_writable(parent)
+        existing = cls.all(log_folder, algo, env_id)
+        number = existing[-1].number + 1 if existing else 1
+        while True:
+            path = parent / f"{env_folder_name(env_id)}_{number}"
+            try:
+                path.mkdir()
+                return cls(path)
+            except FileExistsError:  # another run took this number meanwhile
+                number += 1
+
+    @classmethod
+    def existing(cls, path: str | Path) -> RunFolder:
+        """A run folder that holds a config.yml, or a UsageError saying what is wrong."""
+        run = cls(path)
+        if not run.config.is_file():
+            raise UsageError(f"{run.path}: no config.yml there; is it a run folder?")
+        return run
+
+    @classmethod
+    def all(cls, log_folder: str | Path, algo: str, env_id: str) -> list[RunFolder]:
+        """Existing runs of ``algo`` on ``env_id``, lowest N first."""
+        parent = Path(log_folder) / algo
+        pattern = re.compile(rf"^{re.escape(env_folder_name(env_id))}_(\d+)$")
+        runs = []
+        if parent.is_dir():
+            for child in parent.iterdir():
+                match = pattern.match(child.name)
+                if match and child.is_dir():
+                    runs.append((int(match.group(1)), cls(child)))
+        return [run for _, run in sorted(runs, key=lambda item: item[0])]
+
+    @property
+    def number(self) -> int:
+        return int(self.path.name.rsplit("_", 1)[1])
+
+    @property
+    def name(self) -> str:
+        """``<algo>-<env>_<N>``: a name for files that leave the folder (videos, TensorBoard)."""
+        return f"{self.path.parent.name}-{self.path.name}"
+
+    # -- files ----------------------------------------------------------------
+    @property
+    def config(self) -> Path:
+        return self.path / "config.yml"
+
+    @property
+    def command(self) -> Path:
+        return self.path / "command.txt"
+
+    @property
+    def evaluations(self) -> Path:
+        return self.path / "evaluations.npz"
+
+    @property
+    def best_model(self) -> Path:
+        return self.path / "best_model.zip"
+
+    @property
+    def final_model(self) -> Path:
+        return self.path / "final_model.zip"
+
+    @property
+    def monitor_dir(self) -> Path:
+        return self.path / "monitor"
+
+    @property
+    def learning_curve(self) -> Path:
+        return self.path / "learning_curve.png"
+
+    @property
+    def videos_dir(self) -> Path:
+        return self.path / "videos"
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.path / "checkpoints"
+
+    def progress(self, resumed_at: int | None = None) -> Path:
+        """SB3's CSV log; each resumed session writes its own."""
+        if resumed_at is None:
+            return self.path / "progress.csv"
+        return self.path / f"progress-resumed-at-{resumed_at}.csv"
+
+    def checkpoint(self, steps: int) -> Path:
+        return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip"
+
+    def replay_buffer(self, steps: int) -> Path:
+        return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl"
+
+    def vecnormalize(self, steps: int) -> Path:
+        return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
+
+    @staticmethod
+    def vecnormalize_beside(model: Path) -> Path:
+        """Where the VecNormalize statistics of a best/final model zip are kept."""
+        return model.with_name(f"{model.stem}_vecnormalize.pkl")
+
+    def vecnormalize_for(self, model: Path) -> Path | None:
+        """The VecNormalize statistics saved with ``model`` (a zip of this run), if any."""
+        candidates = [self.vecnormalize_beside(model)]
+        match = _CHECKPOINT.match(model.name)
+        if match and model.parent == self.checkpoint_dir:
+            candidates.append(self.vecnormalize(int(match.group(1))))
+        return next((path for path in candidates if path.is_file()), None)
+
+    def checkpoints(self) -> list[tuple[int, Path]]:
+        """(steps, model zip) of every checkpoint, newest first."""
+        return self._numbered(_CHECKPOINT)
+
+    def replay_buffers(self) -> list[tuple[int, Path]]:
+        """(steps, replay buffer) of every saved buffer, newest first."""
+        return self._numbered(_REPLAY_BUFFER)
+
+    def _numbered(self, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
+        found = []
+        if self.checkpoint_dir.is_dir():
+            for path in self.checkpoint_dir.iterdir():
+                match = pattern.match(path.name)
+                if match:
+                    found.append((int(match.group(1)), path))
+        return sorted(found, reverse=True)
+
+    def prune_replay_buffers(self, keep: int = 2) -> None:
+        """Delete all but the ``keep`` newest replay buffers (each can be hundreds of MB).
+
+        Two are kept so that a resume still finds the buffer matching the previous
+        checkpoint when a kill tore the newest one.
+        """
+        for _, path in self.replay_buffers()[keep:]:
+            path.unlink(missing_ok=True)
+
+    # -- contents ---------------------------------------------------------------
+    def read_config(self) -> dict[str, Any]:
+        try:
+            config = yaml.safe_load(self.config.read_text())
+        except (OSError, yaml.YAMLError) as error:
+            raise UsageError(f"cannot read {self.config}: {error}") from error
+        if not isinstance(config, dict):
+            raise UsageError(f"{self.config} does not hold a run configuration")
+        return config
+
+    def write_config(self, config: dict[str, Any]) -> None:
+        temporary = self.config.with_suffix(".yml.tmp")
+        temporary.write_text(yaml.safe_dump(config, sort_keys=False))
+        temporary.replace(self.config)
+
+    def append_command(self, command: str) -> None:
+        with self.command.open("a") as handle:
+            handle.write(command + "\n")
+
+
+def load_pickle(path: Path) -> Any:
+    with path.open("rb") as handle:
+        return pickle.load(handle)

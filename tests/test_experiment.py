@@ -1,0 +1,208 @@
+"""The training API in process: Experiment, ExperimentConfig, RunFolder, checked checkpoints."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+import yaml
+from stable_baselines3 import SAC
+from stable_baselines3.common.callbacks import BaseCallback
+
+from minitaur_env.training import (
+    Experiment,
+    ExperimentConfig,
+    RunFolder,
+    TrainingDiverged,
+    UsageError,
+)
+from minitaur_env.training import experiment as experiment_module
+from minitaur_env.training.algorithms import load_model
+from minitaur_env.training.callbacks import save_checked_checkpoint
+
+SMALL_SAC = {
+    "learning_starts": 20, "buffer_size": 2000, "batch_size": 16, "train_freq": 1,
+    "gradient_steps": 1, "policy_kwargs": {"net_arch": [16]},
+}  # fmt: skip
+
+
+class RaisesValueErrorAt(gym.Wrapper):
+    """Pendulum whose step raises a ValueError with ``message`` at step 25 (a bug, not a NaN)."""
+
+    def __init__(self, message: str = "bad information in the info dict") -> None:
+        super().__init__(gym.make("Pendulum-v1"))
+        self.message, self.steps = message, 0
+
+    def step(self, action):
+        self.steps += 1
+        if self.steps == 25:
+            raise ValueError(self.message)
+        return super().step(action)
+
+
+class NanObservationAt(gym.Wrapper):
+    def __init__(self) -> None:
+        super().__init__(gym.make("Pendulum-v1"))
+        self.steps = 0
+
+    def step(self, action):
+        obs, *rest = super().step(action)
+        self.steps += 1
+        return (obs * np.nan if self.steps == 25 else obs), *rest
+
+
+for _name, _cls in (("RaisesValueError-v0", RaisesValueErrorAt), ("NanObs-v0", NanObservationAt)):
+    if _name not in gym.registry:
+        gym.register(_name, entry_point=_cls, max_episode_steps=200)
+
+
+def pendulum(tmp_path, **settings) -> Experiment:
+    config = ExperimentConfig.resolve(
+        "sac",
+        settings.pop("env", "Pendulum-v1"),
+        hyperparams={**SMALL_SAC, **settings.pop("hyperparams", {})},
+        n_timesteps=settings.pop("n_timesteps", 200),
+        eval_freq=settings.pop("eval_freq", 0),
+        save_freq=settings.pop("save_freq", 50),
+        vec_env="dummy",
+        device="cpu",
+        **settings,
+    )
+    return Experiment.create(config, tmp_path / "logs", verbose=0)
+
+
+def test_a_run_from_python_writes_its_folder(tmp_path):
+    result = pendulum(tmp_path, eval_freq=100, eval_episodes=2).run()
+    run = result.run
+    assert result.status == "completed" and result.exit_code == 0
+    assert result.num_timesteps == 200 and run.path.name == "Pendulum-v1_1"
+    assert ExperimentConfig.from_dict(run.read_config()).hyperparams["batch_size"] == 16
+    assert [steps for steps, _ in run.checkpoints()] == [200, 150, 100, 50]
+    assert [steps for steps, _ in run.replay_buffers()] == [200, 150]  # two newest kept
+    assert load_model(SAC, run.final_model).num_timesteps == 200
+    assert run.best_model.is_file() and run.learning_curve.is_file()
+    assert result.last_eval[0] == 200 and "last eval" in result.summary()
+
+
+def test_resume_extends_a_run_to_n_steps_and_keeps_its_checkpoints_aligned(tmp_path):
+    first = pendulum(tmp_path, n_timesteps=120, save_freq=50, n_envs=3).run()
+    # The first step past each multiple of save_freq, and the last step.
+    assert [s for s, _ in first.run.checkpoints()] == [120, 102, 51]
+    resumed = Experiment.resume(first.run.path, n_timesteps=260, verbose=0)
+    result = resumed.run()
+    assert result.status == "completed" and resumed.resumed_at == 120
+    assert result.num_timesteps >= 260 and result.trained_steps == result.num_timesteps - 120
+    assert first.run.read_config()["n_timesteps"] == 260
+    # Checkpoints keep landing on the first step past each multiple of save_freq.
+    assert [s for s, _ in first.run.checkpoints()] == [261, 252, 201, 150, 120, 102, 51]
+    assert first.run.progress(120).is_file()
+
+
+def test_resume_refuses_settings_that_contradict_the_run(tmp_path):
+    run = pendulum(tmp_path, n_timesteps=60).run().run
+    with pytest.raises(UsageError, match="seed 3 contradicts the run's saved seed 0"):
+        Experiment.resume(run.path, overrides={"seed": 3})
+    with pytest.raises(UsageError, match=r"hyperparams\.batch_size 64 contradicts"):
+        Experiment.resume(run.path, overrides={"hyperparams.batch_size": 64})
+    Experiment.resume(run.path, overrides={"seed": 0, "hyperparams.batch_size": 16})  # agrees
+
+
+def test_a_checkpoint_is_never_written_from_diverged_weights(tmp_path):
+    experiment = pendulum(tmp_path, n_timesteps=60)
+    experiment.run()
+    model, run = load_model(SAC, experiment.run_folder.final_model), experiment.run_folder
+    model.num_timesteps = 999
+    assert save_checked_checkpoint(model, run) == run.checkpoint(999)  # negative control
+    with torch.no_grad():
+        next(model.policy.parameters())[0] = float("nan")
+    model.num_timesteps = 1000
+    with pytest.raises(TrainingDiverged, match="became non-finite at step 1000"):
+        save_checked_checkpoint(model, run)
+    assert not run.checkpoint(1000).exists()
+
+
+class InterruptAt(BaseCallback):
+    """Ctrl-C at a given step, optionally after poisoning a weight."""
+
+    def __init__(self, step: int, poison: bool) -> None:
+        super().__init__()
+        self.step, self.poison = step, poison
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps == self.step:
+            if self.poison:
+                with torch.no_grad():
+                    next(self.model.policy.parameters())[0] = float("nan")
+            raise KeyboardInterrupt
+        return True
+
+
+@pytest.mark.parametrize("poison", [False, True], ids=["healthy", "diverged"])
+def test_the_ctrl_c_checkpoint_is_checked_too(tmp_path, poison):
+    config = pendulum(tmp_path).config
+    run = Experiment.create(
+        config, tmp_path / "other", verbose=0, callbacks=[InterruptAt(77, poison)]
+    ).run()
+    if poison:
+        assert run.status == "diverged" and run.exit_code == 1 and run.checkpoint is None
+        assert "last good checkpoint" in run.message
+        assert not run.run.checkpoint(77).exists()
+    else:
+        assert run.status == "interrupted" and run.exit_code == 130
+        assert run.checkpoint == run.run.checkpoint(77) and run.checkpoint.is_file()
+        assert run.run.replay_buffer(77).is_file()
+
+
+def test_divergence_is_told_by_type_not_by_words_in_the_message(tmp_path):
+    # The old check matched r"\b(nan|inf)" in any ValueError: "information" read as divergence.
+    with pytest.raises(ValueError, match="bad information"):
+        pendulum(tmp_path, env="RaisesValueError-v0").run()
+    result = pendulum(tmp_path, env="NanObs-v0").run()
+    assert result.status == "diverged" and "found nan in observations" in result.message
+
+
+def test_resume_skips_torn_checkpoints_without_building_envs_for_them(tmp_path, monkeypatch):
+    run = pendulum(tmp_path, n_timesteps=150, save_freq=50).run().run
+    run.checkpoint(150).write_bytes(b"torn")
+    run.replay_buffer(100).write_bytes(b"torn too")
+    built = []
+    original = experiment_module.make_training_env
+    monkeypatch.setattr(
+        experiment_module,
+        "make_training_env",
+        lambda *args, **kwargs: built.append(1) or original(*args, **kwargs),
+    )
+    resumed = Experiment.resume(run.path, n_timesteps=160, verbose=0, log=lambda *a, **k: None)
+    result = resumed.run()
+    assert resumed.resumed_at == 50 and result.num_timesteps == 160
+    assert len(built) == 1
+
+
+def test_config_resolves_entries_and_rejects_bad_values():
+    tuned = ExperimentConfig.resolve("sac", "MinitaurBulletEnv-v0")
+    assert tuned.hyperparams["n_steps"] == 5 and tuned.normalize == {
+        "norm_obs": False,
+        "norm_reward": True,
+    }
+    tutorial = ExperimentConfig.resolve("sac", "MinitaurBulletEnv-v0", entry="tutorial")
+    assert tutorial.n_timesteps == 100_000 and tutorial.hyperparams["buffer_size"] == 10_000
+    assert ExperimentConfig.from_dict({**tuned.to_dict(), "overlap_updates": False}) == tuned
+    with pytest.raises(UsageError, match="--eval-freq must be >= 0"):
+        ExperimentConfig.resolve("sac", "Pendulum-v1", eval_freq=-1)
+    with pytest.raises(UsageError, match="unknown env id"):
+        ExperimentConfig.resolve("sac", "NoSuchEnv-v3")
+
+
+def test_run_folder_names_every_file_in_one_place(tmp_path):
+    run = RunFolder.create(tmp_path, "sac", "minitaur_env:MinitaurBulletEnv-v0")
+    assert run.path == tmp_path / "sac" / "MinitaurBulletEnv-v0_1" and run.number == 1
+    assert run.checkpoint(5).name == "rl_model_5_steps.zip"
+    assert run.replay_buffer(5).name == "rl_model_replay_buffer_5_steps.pkl"
+    assert run.vecnormalize(5).name == "rl_model_vecnormalize_5_steps.pkl"
+    assert run.vecnormalize_beside(run.best_model).name == "best_model_vecnormalize.pkl"
+    assert RunFolder.create(tmp_path, "sac", "MinitaurBulletEnv-v0").number == 2
+    run.write_config({"algo": "sac"})
+    assert yaml.safe_load(run.config.read_text()) == {"algo": "sac"}
+    with pytest.raises(UsageError, match=r"no config\.yml"):
+        RunFolder.existing(tmp_path / "sac" / "MinitaurBulletEnv-v0_2")
