@@ -206,3 +206,46 @@ def test_run_folder_names_every_file_in_one_place(tmp_path):
     assert yaml.safe_load(run.config.read_text()) == {"algo": "sac"}
     with pytest.raises(UsageError, match=r"no config\.yml"):
         RunFolder.existing(tmp_path / "sac" / "MinitaurBulletEnv-v0_2")
+
+
+def _policy_weights(model) -> np.ndarray:
+    if hasattr(model.policy, "actor_state"):  # SBX
+        import jax
+
+        leaves = jax.tree_util.tree_leaves(model.policy.actor_state.params)
+        return np.concatenate([np.ravel(leaf) for leaf in leaves])
+    return torch.cat([p.detach().ravel() for p in model.policy.parameters()]).numpy()
+
+
+@pytest.mark.parametrize(("algo", "backend"), [("sac", "sb3"), ("sac", "sbx"), ("tqc", "sbx")])
+def test_the_seed_decides_the_run_on_every_backend(tmp_path, algo, backend):
+    if backend == "sbx":
+        pytest.importorskip("sbx")
+
+    def trained(seed):
+        config = ExperimentConfig.resolve(
+            algo, "Pendulum-v1", hyperparams=SMALL_SAC, n_timesteps=120, backend=backend,
+            seed=seed, eval_freq=0, save_freq=0, vec_env="dummy", device="cpu",
+        )  # fmt: skip
+        experiment = Experiment.create(config, tmp_path, verbose=0)
+        experiment.run()
+        return _policy_weights(experiment.model), experiment.model.replay_buffer.actions[:100]
+
+    first, again, other = trained(0), trained(0), trained(1)
+    np.testing.assert_array_equal(first[1], again[1])  # the same exploration
+    np.testing.assert_allclose(first[0], again[0], rtol=0, atol=1e-6)  # and updates
+    assert not np.allclose(first[1], other[1]) and not np.allclose(first[0], other[0])
+
+
+def test_sbx_weights_are_checked_too():
+    sbx = pytest.importorskip("sbx")
+    from minitaur_env.training.callbacks import check_weights, weights_finite
+
+    model = sbx.SAC("MlpPolicy", "Pendulum-v1", policy_kwargs={"net_arch": [8]}, seed=0)
+    assert weights_finite(model)
+    state = model.policy.actor_state
+    params = __import__("jax").tree_util.tree_map(lambda leaf: leaf * np.nan, state.params)
+    model.policy.actor_state = state.replace(params=params)
+    assert not weights_finite(model)
+    with pytest.raises(TrainingDiverged, match="actor_state"):
+        check_weights(model)

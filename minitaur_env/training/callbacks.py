@@ -93,18 +93,23 @@ class CheckpointEveryCallback(BaseCallback):
 
 def _weights_finite(policy: Any) -> list[tuple[str, bool]]:
     """(name, all finite) per weight tensor of a torch (SB3) or JAX (SBX) policy."""
-    if isinstance(policy, torch.nn.Module):
+    # SBX policies are torch Modules too (SB3's BasePolicy), with their weights held in
+    # flax train states (actor_state, qf_state, ...) instead of torch parameters.
+    jax_states = {
+        attribute: state.params
+        for attribute, state in vars(policy).items()
+        if getattr(state, "params", None) is not None
+    }
+    if not jax_states:
         with torch.no_grad():
             return [(n, bool(torch.isfinite(p).all())) for n, p in policy.named_parameters()]
     import jax
 
     found = []
-    for attribute, state in vars(policy).items():
-        params = getattr(state, "params", None)
-        if params is not None:
-            for path, leaf in jax.tree_util.tree_leaves_with_path(params):
-                name = f"{attribute}{jax.tree_util.keystr(path)}"
-                found.append((name, bool(np.isfinite(np.asarray(leaf)).all())))
+    for attribute, params in jax_states.items():
+        for path, leaf in jax.tree_util.tree_leaves_with_path(params):
+            name = f"{attribute}{jax.tree_util.keystr(path)}"
+            found.append((name, bool(np.isfinite(np.asarray(leaf)).all())))
     return found
 
 
