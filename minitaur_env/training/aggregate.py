@@ -1,0 +1,208 @@
+"""Learning statistics over run folders: per-run curves, milestones, IQM with bootstrap CIs.
+
+Each run's own ``evaluations.npz`` (deterministic evaluations, raw return) and monitor
+logs (wall-clock) are the source; nothing here depends on how the runs were launched
+(train.py, the sweep, a notebook). The interquartile mean and its 95 % stratified
+bootstrap confidence interval come from ``rliable`` (Agarwal et al. 2021), installed with
+the ``ray`` extra.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from minitaur_env.training.run_folder import RunFolder
+
+
+@dataclasses.dataclass
+class RunCurve:
+    """One run's evaluations: env steps, mean eval return, wall-clock seconds."""
+
+    run: RunFolder
+    steps: np.ndarray
+    returns: np.ndarray
+    seconds: np.ndarray
+
+    @classmethod
+    def read(cls, run: RunFolder | str | Path) -> RunCurve:
+        run = run if isinstance(run, RunFolder) else RunFolder(run)
+        with np.load(run.evaluations) as data:
+            steps, returns = data["timesteps"].astype(int), data["results"].mean(axis=1)
+        return cls(run, steps, returns, wall_clock_at(run, steps))
+
+    @property
+    def final(self) -> float:
+        return float(self.returns[-1]) if len(self.returns) else np.nan
+
+    @property
+    def best(self) -> tuple[float, int]:
+        if not len(self.returns):
+            return np.nan, 0
+        index = int(np.argmax(self.returns))
+        return float(self.returns[index]), int(self.steps[index])
+
+    def at(self, step: int) -> float:
+        """The last evaluation at or before ``step``; NaN if the run stopped before it."""
+        earlier = np.nonzero(self.steps <= step)[0]
+        if not len(earlier) or self.steps[-1] < step:
+            return np.nan
+        return float(self.returns[earlier[-1]])
+
+    def reached(self, milestone: float) -> tuple[int, float] | None:
+        """(env steps, seconds) of the first evaluation at or above ``milestone``."""
+        hit = np.nonzero(self.returns >= milestone)[0]
+        if not len(hit):
+            return None
+        return int(self.steps[hit[0]]), float(self.seconds[hit[0]])
+
+
+def wall_clock_at(run: RunFolder, steps: np.ndarray) -> np.ndarray:
+    """Seconds since the run started when it had made ``steps`` env steps (monitor logs).
+
+    The monitors record every finished episode's end time; env steps between episode
+    ends are interpolated. Time spent paused between a stop and a resume is not counted
+    by this, since the monitor clock restarts from each session's first episode.
+    """
+    events = []
+    for monitor in sorted(run.monitor_dir.glob("*.monitor.csv")):
+        with monitor.open() as handle:
+            next(handle)  # the JSON header line
+            events += [(float(row["t"]), int(row["l"])) for row in csv.DictReader(handle)]
+    if not events:
+        return np.full(len(steps), np.nan)
+    events.sort()
+    times = np.array([t for t, _ in events])
+    done = np.cumsum([n for _, n in events])
+    return np.interp(steps, done, times, right=np.nan)
+
+
+def iqm_with_ci(
+    values: Sequence[float], reps: int = 2000, seed: int = 0
+) -> tuple[float, float, float]:
+    """(IQM, 95 % CI low, high) over runs, by rliable's stratified bootstrap."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    scores = np.asarray([v for v in values if np.isfinite(v)], dtype=float)
+    if not len(scores):
+        return np.nan, np.nan, np.nan
+    if len(scores) == 1:
+        return float(scores[0]), float(scores[0]), float(scores[0])
+    with warnings.catch_warnings():
+        # arch, under rliable, deprecates the RandomState that rliable hands it.
+        warnings.simplefilter("ignore", FutureWarning)
+        estimates, intervals = rly.get_interval_estimates(
+            {"runs": scores.reshape(-1, 1)},
+            lambda x: np.array([metrics.aggregate_iqm(x)]),
+            reps=reps,
+            random_state=np.random.RandomState(seed),
+        )
+    return (
+        float(estimates["runs"][0]),
+        float(intervals["runs"][0, 0]),
+        float(intervals["runs"][1, 0]),
+    )
+
+
+@dataclasses.dataclass
+class GroupSummary:
+    """One configuration over its seeds."""
+
+    name: str
+    curves: list[RunCurve]
+    failed: list[str]
+    milestones: Sequence[float] = (5.0, 15.0)
+    unfinished: int = 0
+
+    def row(self) -> dict[str, object]:
+        finals = [c.final for c in self.curves]
+        bests = [c.best[0] for c in self.curves]
+        iqm, low, high = iqm_with_ci(finals)
+        row: dict[str, object] = {
+            "config": self.name,
+            "seeds_done": len(self.curves),
+            "seeds_failed": len(self.failed),
+            "seeds_unfinished": self.unfinished,
+            "steps": int(min((c.steps[-1] for c in self.curves if len(c.steps)), default=0)),
+            "final_per_seed": " ".join(f"{v:.2f}" for v in finals),
+            "best_per_seed": " ".join(f"{v:.2f}" for v in bests),
+            "median": float(np.median(finals)) if finals else np.nan,
+            "iqm": iqm,
+            "iqm_low": low,
+            "iqm_high": high,
+        }
+        for milestone in self.milestones:
+            hits = [c.reached(milestone) for c in self.curves]
+            got = [h for h in hits if h is not None]
+            label = f"{milestone:g}"
+            row[f"reached_{label}"] = f"{len(got)}/{len(hits)}"
+            row[f"median_steps_to_{label}"] = (
+                float(np.median([h[0] for h in got])) if got else np.nan
+            )
+            row[f"median_minutes_to_{label}"] = (
+                float(np.median([h[1] for h in got])) / 60 if got else np.nan
+            )
+        return row
+
+
+def write_csv(rows: list[dict[str, object]], path: Path) -> None:
+    from minitaur_env.training.video import atomic_path
+
+    with atomic_path(path) as temp, temp.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def format_rows(rows: list[dict[str, object]]) -> str:
+    """A fixed-width text table of the summary rows, for the terminal."""
+    columns = list(rows[0])
+    texts = [[_cell(row[c]) for c in columns] for row in rows]
+    widths = [max(len(c), *(len(t[i]) for t in texts)) for i, c in enumerate(columns)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True))]
+    lines += ["  ".join(t.ljust(w) for t, w in zip(text, widths, strict=True)) for text in texts]
+    return "\n".join(lines)
+
+
+def _cell(value: object) -> str:
+    if isinstance(value, float):
+        return "-" if not np.isfinite(value) else f"{value:.2f}"
+    return str(value)
+
+
+def plot_iqm_curves(groups: list[GroupSummary], path: Path, threshold: float | None) -> None:
+    """IQM of the eval return over seeds against env steps, with its 95 % CI band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from minitaur_env.training.video import atomic_path
+
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
+    for group in groups:
+        if not group.curves:
+            continue
+        grid = np.unique(np.concatenate([c.steps for c in group.curves]))
+        stats = np.array(
+            [iqm_with_ci([c.at(int(s)) for c in group.curves], reps=500) for s in grid]
+        )
+        line = ax.plot(grid, stats[:, 0], label=f"{group.name} ({len(group.curves)} seeds)")
+        ax.fill_between(grid, stats[:, 1], stats[:, 2], alpha=0.2, color=line[0].get_color())
+    if threshold is not None:
+        ax.axhline(threshold, color="grey", linestyle="--", label="reward threshold")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("eval return, IQM over seeds (95% CI)")
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as temp:
+        fig.savefig(temp, format="png")
+    plt.close(fig)

@@ -1,0 +1,123 @@
+"""Sweeps on Ray Tune: seeds, a search with a failing trial, Ctrl-C then --resume."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ray")
+pytest.importorskip("rliable")
+
+from minitaur_env.training import ExperimentConfig, UsageError
+from minitaur_env.training.evaluation import load_policy
+from minitaur_env.training.sweeps import Sweep, load_search_space, summarize
+from tests.scripts import REPO
+
+TINY_SAC = {"learning_starts": 100, "batch_size": 32, "policy_kwargs": {"net_arch": [32]}}
+SWEEP_ARGS = [
+    "--env", "Pendulum-v1", "--eval-freq", "500", "--eval-episodes", "2", "--save-freq", "500",
+    "--hyperparams", "learning_starts=100", "batch_size=32", "policy_kwargs={net_arch: [32]}",
+]  # fmt: skip
+
+
+def base(n_timesteps: int = 400) -> ExperimentConfig:
+    return ExperimentConfig.resolve(
+        "sac", "Pendulum-v1", hyperparams=TINY_SAC, n_timesteps=n_timesteps, eval_freq=200,
+        eval_episodes=2, save_freq=200, vec_env="dummy", device="cpu",
+    )  # fmt: skip
+
+
+def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path):
+    sweep = Sweep(base(), storage=str(tmp_path), name="seeds", seeds=[0, 1])
+    assert sweep.run() == []
+    rows = summarize(sweep.folder)
+    assert len(rows) == 1 and rows[0]["config"] == "default"
+    row = rows[0]
+    assert row["seeds_done"] == 2 and row["seeds_failed"] == 0 and row["steps"] == 400
+    runs = sorted(sweep.folder.glob("runs/*/sac/Pendulum-v1_1"))
+    finals = []
+    for run in runs:
+        with np.load(run / "evaluations.npz") as data:
+            assert list(data["timesteps"]) == [200, 400]
+            finals.append(data["results"][-1].mean())
+        load_policy(run / "best_model.zip", device="cpu")  # evaluate.py reads trials too
+    assert row["final_per_seed"] == " ".join(f"{v:.2f}" for v in finals)
+    assert row["median"] == pytest.approx(np.median(finals))
+    assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"]
+    with (sweep.folder / "summary.csv").open() as handle:
+        written = list(csv.DictReader(handle))
+    assert {"iqm", "iqm_low", "iqm_high", "median_minutes_to_15"} <= set(written[0])
+    assert (sweep.folder / "curves.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_a_failing_trial_is_one_line_and_the_others_finish(tmp_path):
+    space = tmp_path / "space.yml"
+    space.write_text(
+        'policy_kwargs: {choice: ["{net_arch: [32]}", "{activation_fn: relu}"]}\n'
+        "learning_rate: {loguniform: [1.0e-4, 1.0e-3]}\n"
+    )
+    sweep = Sweep(
+        base(200), storage=str(tmp_path), name="search", search=load_search_space(space), trials=4
+    )
+    failures = sweep.run()
+    rows = summarize(sweep.folder)
+    done = sum(row["seeds_done"] for row in rows)
+    assert failures and done >= 1 and done + len(failures) == 4
+    for line in failures:
+        assert "\n" not in line and "invalid hyperparameters for sac" in line
+    assert all("activation_fn" in row["config"] for row in rows if row["seeds_failed"])
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("lr: {normal: [0, 1]}", "must be one of {uniform: ...}"),
+        ("lr: {loguniform: [0, 1]}", "loguniform needs low > 0"),
+        ("lr: {uniform: [1, 0]}", "needs [low, high], low < high"),
+        ("net: {choice: [{net_arch: [8]}]}", "write {'net_arch': [8]} as a YAML string"),
+        ("[1, 2]", "must map hyperparameter names to ranges"),
+    ],
+)
+def test_bad_search_spaces_are_one_clear_error(tmp_path, text, message):
+    path = tmp_path / "space.yml"
+    path.write_text(text)
+    with pytest.raises(UsageError) as error:
+        load_search_space(path)
+    assert message in str(error.value)
+
+
+def sweep_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "minitaur_env.sweep", *args]
+
+
+def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
+    args = [*SWEEP_ARGS, "-n", "3000", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    process = subprocess.Popen(
+        sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, env=env, start_new_session=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 180
+    while not list(tmp_path.glob("cut/runs/*/sac/*/checkpoints/rl_model_1000_steps.zip")):
+        assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
+        time.sleep(0.5)
+    os.killpg(process.pid, signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr
+    assert "--resume" in stderr.splitlines()[-1]
+
+    resumed = subprocess.run(
+        sweep_command(*args, "--resume"), cwd=tmp_path, capture_output=True, text=True,
+        env=env, timeout=600,
+    )  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    rows = summarize(tmp_path / "cut")
+    assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 3000
+    assert list(tmp_path.glob("cut/runs/*/sac/*/progress-resumed-at-*.csv"))  # not restarted
