@@ -1,20 +1,23 @@
-"""Learning benchmark: a configuration over K seeds, return at fixed steps and wall-clock.
+"""Learning benchmark: configurations over seeds, return at fixed steps, IQM and wall-clock.
 
-Runs ``train.py`` once per seed (one after the other), then prints, per run and as the
-median over the runs that trained that far, the mean evaluation return (the run's
-EvalCallback, deterministic, raw classic return) at the last evaluation at or before each
-step count, and the wall-clock at which the evaluation return first reached each milestone.
+Trains a configuration over seeds with train.py (one after the other), or summarizes run
+folders that exist already, grouped by label. Prints, per run, the mean evaluation return
+(the run's EvalCallback: deterministic, raw classic return) at the last evaluation at or
+before each step count; per group, the same table as the sweep's summary (final and best
+return per seed, median, IQM with its 95 % bootstrap CI, steps and minutes to 5 and 15).
+``--plot`` draws the IQM curves with their CI bands against env steps and wall-clock.
 
     python benchmarks/learning.py --algo ppo -n 300000 --seeds 0 1 2 -- --eval-episodes 10
-    python benchmarks/learning.py --summarize logs/ppo/MinitaurBulletEnv-v0_1 ...
+    python benchmarks/learning.py --group sac logs/sac/M_4 logs/sac/M_5 --group ppo ... \\
+        --at 50000 100000 150000 --plot learning.png
 
-Arguments after ``--`` go to train.py unchanged.
+Arguments after ``--`` go to train.py unchanged. For many seeds or a search, use
+``python -m minitaur_env.sweep``, which writes the same table.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import re
 import subprocess
 import sys
@@ -22,45 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from minitaur_env.training.aggregate import GroupSummary, RunCurve, format_rows, iqm_with_ci
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def wall_clock_at(run_dir: Path, steps: np.ndarray) -> np.ndarray:
-    """Seconds since the run started when it had made ``steps`` env steps (monitor logs)."""
-    events = []
-    for monitor in sorted((run_dir / "monitor").glob("*.monitor.csv")):
-        with monitor.open() as handle:
-            next(handle)  # the JSON header line
-            events += [(float(row["t"]), int(row["l"])) for row in csv.DictReader(handle)]
-    if not events:
-        return np.full(len(steps), np.nan)
-    events.sort()
-    times = np.array([t for t, _ in events])
-    done = np.cumsum([n for _, n in events])
-    return np.interp(steps, done, times, right=np.nan)
-
-
-def run_summary(run_dir: Path, at: list[int], milestones: list[float]) -> dict:
-    with np.load(run_dir / "evaluations.npz") as data:
-        steps, returns = data["timesteps"], data["results"].mean(axis=1)
-    at_steps = []
-    for target in at:
-        earlier = np.nonzero(steps <= target)[0]
-        trained_that_far = len(earlier) and steps[-1] >= target
-        at_steps.append(float(returns[earlier[-1]]) if trained_that_far else np.nan)
-    wall = wall_clock_at(run_dir, steps)
-    reached = {}
-    for milestone in milestones:
-        hit = np.nonzero(returns >= milestone)[0]
-        reached[milestone] = (int(steps[hit[0]]), float(wall[hit[0]])) if len(hit) else None
-    best = int(np.argmax(returns))
-    return {
-        "run": run_dir,
-        "at": at_steps,
-        "reached": reached,
-        "best": (float(returns[best]), int(steps[best])),
-        "last_step": int(steps[-1]),
-    }
 
 
 def train(args: argparse.Namespace, seed: int, extra: list[str]) -> Path:
@@ -77,6 +44,33 @@ def train(args: argparse.Namespace, seed: int, extra: list[str]) -> Path:
     return Path(match.group(1))
 
 
+def plot(groups: list[GroupSummary], path: Path, threshold: float) -> None:
+    """IQM over seeds with its 95 % CI band, against env steps and against minutes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (by_steps, by_time) = plt.subplots(1, 2, figsize=(12, 4.5), dpi=100)
+    for group in groups:
+        grid = np.unique(np.concatenate([c.steps for c in group.curves]))
+        stats = np.array([iqm_with_ci([c.at(int(s)) for c in group.curves], 500) for s in grid])
+        minutes = np.nanmedian([np.interp(grid, c.steps, c.seconds) for c in group.curves], 0)
+        label = f"{group.name} ({len(group.curves)} seeds)"
+        for ax, x in ((by_steps, grid), (by_time, minutes / 60)):
+            line = ax.plot(x, stats[:, 0], label=label)
+            ax.fill_between(x, stats[:, 1], stats[:, 2], alpha=0.2, color=line[0].get_color())
+    for ax, xlabel in ((by_steps, "env steps"), (by_time, "wall-clock (min), median run")):
+        ax.axhline(threshold, color="grey", linestyle="--", label="reward threshold")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("eval return: IQM over seeds, 95% CI")
+        ax.grid(alpha=0.3)
+    by_steps.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    print(f"plot: {path}")
+
+
 def main() -> None:
     argv = sys.argv[1:]
     extra = argv[argv.index("--") + 1 :] if "--" in argv else []
@@ -88,31 +82,38 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("-f", "--log-folder", default="logs/learning")
     parser.add_argument("--at", type=int, nargs="+", default=[100_000, 200_000, 300_000])
-    parser.add_argument("--milestones", type=float, nargs="+", default=[5.0, 15.0])
-    parser.add_argument("--summarize", type=Path, nargs="+", help="existing run folders only")
+    parser.add_argument(
+        "--group", nargs="+", action="append", metavar=("LABEL", "RUN_DIR"),
+        help="summarize these existing run folders under LABEL (repeatable)",
+    )  # fmt: skip
+    parser.add_argument("--plot", type=Path, help="write the IQM curves to this PNG")
+    parser.add_argument("--threshold", type=float, default=15.0)
     args = parser.parse_args(argv)
 
-    runs = args.summarize or [train(args, seed, extra) for seed in args.seeds]
-    summaries = [run_summary(run, args.at, args.milestones) for run in runs]
+    if args.group:
+        labelled = [(group[0], [Path(p) for p in group[1:]]) for group in args.group]
+    else:
+        labelled = [(args.algo, [train(args, seed, extra) for seed in args.seeds])]
+    groups = [GroupSummary(label, [RunCurve.read(r) for r in runs], []) for label, runs in labelled]
+
     header = "".join(f"{f'@{s // 1000}k':>10}" for s in args.at)
-    header += "".join(f"{f'>= {m:g}':>24}" for m in args.milestones)
-    print(f"{'run':<48}{header}{'best':>18}")
-    for summary in summaries:
-        cells = "".join(f"{value:>10.2f}" for value in summary["at"])
-        for milestone in args.milestones:
-            hit = summary["reached"][milestone]
-            text = f"{hit[0] // 1000}k steps, {hit[1] / 60:.0f} min" if hit else "not reached"
-            cells += f"{text:>24}"
-        best, step = summary["best"]
-        print(f"{str(summary['run'])[-48:]:<48}{cells}{f'{best:.2f} @{step // 1000}k':>18}")
-    table = np.array([s["at"] for s in summaries])
-    medians, counts = "", ""
-    for column in table.T:
-        reached = column[~np.isnan(column)]
-        medians += f"{np.median(reached):>10.2f}" if len(reached) else f"{'-':>10}"
-        counts += f"{f'{len(reached)}/{len(column)}':>10}"
-    print(f"{'median over the runs that got that far':<48}{medians}")
-    print(f"{'runs that got that far':<48}{counts}")
+    print(f"{'group':<14}{'run':<44}{header}{'best':>16}")
+    for group in groups:
+        for curve in group.curves:
+            cells = "".join(f"{curve.at(s):>10.2f}" for s in args.at)
+            best, step = curve.best
+            name = str(curve.run.path)[-43:]
+            print(f"{group.name:<14}{name:<44}{cells}{f'{best:.2f} @{step // 1000}k':>16}")
+        table = np.array([[c.at(s) for s in args.at] for c in group.curves])
+        medians = "".join(
+            f"{np.median(col[~np.isnan(col)]):>10.2f}" if (~np.isnan(col)).any() else f"{'-':>10}"
+            for col in table.T
+        )
+        print(f"{group.name:<14}{'median over the runs that got that far':<44}{medians}")
+    print()
+    print(format_rows([group.row() for group in groups]))
+    if args.plot:
+        plot(groups, args.plot, args.threshold)
 
 
 if __name__ == "__main__":

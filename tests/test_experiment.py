@@ -181,10 +181,7 @@ def test_resume_skips_torn_checkpoints_without_building_envs_for_them(tmp_path, 
 
 def test_config_resolves_entries_and_rejects_bad_values():
     tuned = ExperimentConfig.resolve("sac", "MinitaurBulletEnv-v0")
-    assert tuned.hyperparams["n_steps"] == 5 and tuned.normalize == {
-        "norm_obs": False,
-        "norm_reward": True,
-    }
+    assert tuned.hyperparams["n_steps"] == 5 and tuned.normalize is True
     tutorial = ExperimentConfig.resolve("sac", "MinitaurBulletEnv-v0", entry="tutorial")
     assert tutorial.n_timesteps == 100_000 and tutorial.hyperparams["buffer_size"] == 10_000
     assert ExperimentConfig.from_dict({**tuned.to_dict(), "overlap_updates": False}) == tuned

@@ -42,7 +42,7 @@ def test_default_run_leaves_everything_behind(tmp_path):
     assert config["hyperparams"]["policy_kwargs"] == {"net_arch": [256, 256]}
     assert config["hyperparams"]["learning_starts"] == 50
     assert config["hyperparams"]["n_steps"] == 5  # the tuned Minitaur entry
-    assert config["normalize"] == {"norm_obs": False, "norm_reward": True}
+    assert config["normalize"] is True  # observations and rewards
     assert "train.py" in (run / "command.txt").read_text()
 
     with np.load(run / "evaluations.npz") as evaluations:
