@@ -84,7 +84,7 @@ def test_zoo_style_model_selection(workdir, selection, expected):
         *selection, "--episodes", "1", *SHORT, cwd=workdir,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    assert f"{expected} (sac)" in result.stdout.splitlines()[0]
+    assert f"{expected} (sac, observations normalized)" in result.stdout.splitlines()[0]
 
 
 def test_render_video_writes_mp4_and_gif(workdir, best_model):

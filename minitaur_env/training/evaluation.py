@@ -5,7 +5,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import pickle
+import sys
+import time
 import zipfile
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -264,3 +267,106 @@ def format_table(summary: dict[str, dict[str, float]], episodes: int) -> str:
             )
     rows.append(f"{'falls':<30}{int(summary['fell']['count']):>10d} of {episodes}")
     return "\n".join(rows)
+
+
+def evaluate_from_args(args: Any, default_env: str) -> int:
+    """What evaluate.py does with its flags; returns the exit code."""
+    from minitaur_env.training.envs import make_env
+    from minitaur_env.training.hyperparams import parse_overrides
+    from minitaur_env.training.run_folder import ensure_writable
+    from minitaur_env.training.video import atomic_path, record_video
+
+    try:
+        path = args.model or find_model(
+            args.log_folder,
+            args.algo,
+            args.env,
+            args.exp_id,
+            args.load_best,
+            args.load_checkpoint,
+            args.load_last_checkpoint,
+        )
+        policy = load_policy(Path(path), args.algo, args.device)
+        env_id = args.env or policy.env_id or default_env
+        # Judge on the registered episode length, whatever the training run used.
+        env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
+        env_kwargs.update(parse_overrides(args.env_kwargs, "--env-kwargs"))
+        video_path = None
+        if args.render_video:
+            stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+            default = Path("videos") / f"{env_id.split(':')[-1]}_{policy.algo}_{stamp}.mp4"
+            video_path = args.output or default
+            ensure_writable(video_path.parent)
+        if args.json is not None:
+            ensure_writable(args.json.parent)
+        details = [policy.algo] + (["sbx"] if policy.backend == "sbx" else [])
+        if policy.normalizer is not None and policy.normalizer.norm_obs:
+            details.append("observations normalized")
+        print(f"policy: {policy.path} ({', '.join(details)}) on {env_id}")
+
+        results = None
+        if args.episodes:
+            env = make_env(env_id, env_kwargs)
+            try:
+                records = run_episodes(policy, env, args.episodes, args.seed, args.deterministic)
+            finally:
+                env.close()
+            summary = summarize(records)
+            mode = "deterministic" if args.deterministic else "stochastic"
+            print(f"{args.episodes} episodes, {mode}, seeds {args.seed}..")
+            print(format_table(summary, args.episodes))
+            results = {
+                "model": str(policy.path),
+                "algo": policy.algo,
+                "env": env_id,
+                "episodes": args.episodes,
+                "seed": args.seed,
+                "deterministic": args.deterministic,
+                "summary": summary,
+                "per_episode": records,
+            }
+            if args.json is not None:
+                with atomic_path(args.json) as temp:
+                    temp.write_text(json.dumps(results, indent=2))
+                print(f"statistics: {args.json}")
+
+        if video_path is not None:
+            env = make_env(
+                env_id, env_kwargs, render_mode="rgb_array", width=args.width, height=args.height
+            )
+            started = time.perf_counter()
+            try:
+                stats = record_video(
+                    env,
+                    lambda obs: policy.act(obs, args.deterministic),
+                    video_path,
+                    episodes=args.video_episodes,
+                    max_steps=env.spec.max_episode_steps or 1000,
+                    fps=args.video_fps,
+                    seed=args.seed,
+                    gif_path=video_path.with_suffix(".gif") if args.gif else None,
+                )
+            finally:
+                env.close()
+            elapsed = time.perf_counter() - started
+            gif = f"; gif: {video_path.with_suffix('.gif')}" if args.gif else ""
+            print(
+                f"video: {video_path} ({stats['frames']} frames at {stats['fps']:g} fps, "
+                f"{elapsed:.1f} s to write){gif}"
+            )
+        if args.gui:
+            env = make_env(env_id, env_kwargs, render_mode="human")
+            try:
+                run_episodes(policy, env, args.video_episodes, args.seed, args.deterministic)
+            finally:
+                env.close()
+    except UsageError as error:
+        print(f"evaluate.py: error: {error}", file=sys.stderr)
+        return 2
+    except RuntimeError as error:  # e.g. the GUI without a display
+        print(f"evaluate.py: error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("evaluate.py: interrupted", file=sys.stderr)
+        return 130
+    return 0
