@@ -150,7 +150,10 @@ def run_trial(trial: dict[str, Any]) -> None:
     )
     folder = Path(trial["runs"]) / tune.get_context().get_trial_id()
     folder.mkdir(parents=True, exist_ok=True)
-    record = {"group": group_name(sampled), "seed": config.seed, "sampled": sampled}
+    import ray
+
+    node = ray.get_runtime_context().get_node_id()
+    record = {"group": group_name(sampled), "seed": config.seed, "sampled": sampled, "node": node}
 
     def write(status: str, error: str = "") -> None:
         (folder / TRIAL_FILE).write_text(
