@@ -112,7 +112,7 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
         "evaluate.py", "--model", str(run / "final_model.zip"), "--episodes", "1", cwd=tmp_path
     )
     assert evaluated.returncode == 0, evaluated.stderr
-    assert "(sac, sbx)" in evaluated.stdout
+    assert "(sac, sbx, observations normalized)" in evaluated.stdout
 
 
 def test_video_recording_does_not_change_training(tmp_path):
