@@ -18,6 +18,7 @@ from minitaur_env.training import (
     UsageError,
 )
 from minitaur_env.training import experiment as experiment_module
+from minitaur_env.training.aggregate import wall_clock_at
 from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.callbacks import save_checked_checkpoint
 
@@ -55,6 +56,11 @@ class NanObservationAt(gym.Wrapper):
 for _name, _cls in (("RaisesValueError-v0", RaisesValueErrorAt), ("NanObs-v0", NanObservationAt)):
     if _name not in gym.registry:
         gym.register(_name, entry_point=_cls, max_episode_steps=200)
+if "ShortPendulum-v0" not in gym.registry:
+    gym.register(
+        "ShortPendulum-v0", entry_point="gymnasium.envs.classic_control:PendulumEnv",
+        max_episode_steps=25,
+    )  # fmt: skip
 
 
 def pendulum(tmp_path, **settings) -> Experiment:
@@ -97,6 +103,31 @@ def test_resume_extends_a_run_to_n_steps_and_keeps_its_checkpoints_aligned(tmp_p
     # Checkpoints keep landing on the first step past each multiple of save_freq.
     assert [s for s, _ in first.run.checkpoints()] == [261, 252, 201, 150, 120, 102, 51]
     assert first.run.progress(120).is_file()
+
+
+def test_resume_forgets_what_the_killed_session_logged_after_its_checkpoint(tmp_path):
+    # A kill after step 250 whose newest readable checkpoint is 200: the episodes and
+    # evaluations of steps 201-250 belong to a branch the resume does not continue.
+    run = pendulum(tmp_path, env="ShortPendulum-v0", n_timesteps=250, save_freq=100,
+                   eval_freq=50, eval_episodes=1).run().run  # fmt: skip
+    run.checkpoint(250).unlink()
+    result = Experiment.resume(run.path, n_timesteps=300, verbose=0).run()
+    assert result.status == "completed"
+    with np.load(run.evaluations) as data:
+        assert data["timesteps"].tolist() == [50, 100, 150, 200, 250, 300]
+    monitor = next(run.monitor_dir.glob("*.monitor.csv")).read_text().splitlines()[2:]
+    assert sum(int(line.split(",")[1]) for line in monitor) == 300  # 350 if kept
+
+
+def test_wall_clock_continues_across_resumed_sessions(tmp_path):
+    run = RunFolder(tmp_path)
+    run.monitor_dir.mkdir()
+    episodes = [(10.0, 100), (20.0, 100), (5.0, 100), (10.0, 100)]  # clock restarts at 5.0
+    (run.monitor_dir / "0.monitor.csv").write_text(
+        '#{"t_start": 0}\nr,l,t\n' + "".join(f"0,{n},{t}\n" for t, n in episodes)
+    )
+    seconds = wall_clock_at(run, np.array([100, 200, 300, 400]))
+    assert seconds.tolist() == [10.0, 20.0, 25.0, 30.0]
 
 
 def test_resume_refuses_settings_that_contradict_the_run(tmp_path):

@@ -63,17 +63,24 @@ class RunCurve:
 
 
 def wall_clock_at(run: RunFolder, steps: np.ndarray) -> np.ndarray:
-    """Seconds since the run started when it had made ``steps`` env steps (monitor logs).
+    """Seconds of training when the run had made ``steps`` env steps (monitor logs).
 
     The monitors record every finished episode's end time; env steps between episode
-    ends are interpolated. Time spent paused between a stop and a resume is not counted
-    by this, since the monitor clock restarts from each session's first episode.
+    ends are interpolated. Each resumed session's monitor clock restarts from 0, so a
+    session is counted from where the previous one's last logged episode ended: time
+    spent stopped between sessions is not counted.
     """
     events = []
     for monitor in sorted(run.monitor_dir.glob("*.monitor.csv")):
         with monitor.open() as handle:
             next(handle)  # the JSON header line
-            events += [(float(row["t"]), int(row["l"])) for row in csv.DictReader(handle)]
+            offset, previous = 0.0, 0.0
+            for row in csv.DictReader(handle):
+                time = float(row["t"])
+                if time < previous:
+                    offset += previous
+                previous = time
+                events.append((offset + time, int(row["l"])))
     if not events:
         return np.full(len(steps), np.nan)
     events.sort()

@@ -387,6 +387,7 @@ class Experiment:
         if self.resuming:
             model, normalizer, steps = self._load_newest_checkpoint()
             self.resumed_at = steps
+            self.run_folder.rewind_logs(steps)
             # New episodes after a resume, from the same seed.
             self._build_envs(config.seed + steps, normalizer)
             model.set_env(self.env, force_reset=True)

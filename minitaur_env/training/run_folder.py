@@ -8,6 +8,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from minitaur_env.training import UsageError
@@ -214,9 +215,51 @@ class RunFolder:
         temporary.write_text(yaml.safe_dump(config, sort_keys=False))
         temporary.replace(self.config)
 
+    def rewind_logs(self, steps: int) -> None:
+        """Forget evaluations and training episodes logged after env step ``steps``.
+
+        A resume restarts from a checkpoint, so what the killed session logged after it
+        belongs to a branch that no longer exists; kept, it would repeat steps and
+        evaluations. An episode still running at the checkpoint is dropped too.
+        """
+        if self.evaluations.exists():
+            with np.load(self.evaluations) as data:
+                logged = dict(data)
+            kept = logged["timesteps"] <= steps
+            if not kept.all():
+                np.savez(self.evaluations, **{key: value[kept] for key, value in logged.items()})
+        monitors = sorted(self.monitor_dir.glob("*.monitor.csv"))
+        episodes = []  # (session, time, length, monitor, line)
+        contents = {}
+        for monitor in monitors:
+            lines = monitor.read_text().splitlines(keepends=True)
+            contents[monitor] = lines
+            session, previous = 0, -np.inf
+            for index, line in enumerate(lines[2:], start=2):
+                time, length = _monitor_time_and_length(line)
+                if time < previous:  # each resumed session's clock restarts from 0
+                    session += 1
+                previous = time
+                episodes.append((session, time, length, monitor, index))
+        episodes.sort(key=lambda episode: episode[:2])
+        done, dropped = 0, {monitor: set() for monitor in monitors}
+        for _, _, length, monitor, index in episodes:
+            done += length
+            if done > steps:
+                dropped[monitor].add(index)
+        for monitor, lines in contents.items():
+            if dropped[monitor]:
+                kept_lines = [line for i, line in enumerate(lines) if i not in dropped[monitor]]
+                monitor.write_text("".join(kept_lines))
+
     def append_command(self, command: str) -> None:
         with self.command.open("a") as handle:
             handle.write(command + "\n")
+
+
+def _monitor_time_and_length(line: str) -> tuple[float, int]:
+    reward, length, time = line.strip().split(",")[:3]  # SB3 Monitor's columns: r,l,t
+    return float(time), int(length)
 
 
 def load_pickle(path: Path) -> Any:
