@@ -258,7 +258,7 @@ class RunFolder:
 
 
 def _monitor_time_and_length(line: str) -> tuple[float, int]:
-    reward, length, time = line.strip().split(",")[:3]  # SB3 Monitor's columns: r,l,t
+    _reward, length, time = line.strip().split(",")[:3]  # SB3 Monitor's columns: r,l,t
     return float(time), int(length)
 
 
