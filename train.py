@@ -22,6 +22,7 @@ from minitaur_env.training.cli import (
     train_from_args,
 )
 from minitaur_env.training.envs import VEC_ENVS
+from minitaur_env.training.progress import PROGRESS_MODES
 
 
 def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:
@@ -43,11 +44,18 @@ def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:
     add("--video-length", type=int, default=1000, help="max env steps per video (default: 1000)")
     add("-f", "--log-folder", default="logs", help="root of the run folders (default: logs)")
     add("--tensorboard-log", default=None, help="TensorBoard log folder (default: none)")
-    add("--progress", action="store_true", help="show a progress bar")
+    add(
+        "--progress",
+        nargs="?",
+        const="bar",
+        default="auto",
+        choices=PROGRESS_MODES,
+        help="auto (default): a progress bar on a terminal, else one line per evaluation",
+    )
     add("--device", default="auto", help="torch device: auto, cpu, cuda (default: auto)")
     add("--num-threads", type=int, default=0, help="torch CPU threads; 0: torch's default")
     add("--resume", metavar="RUN_DIR", help="continue this run from its newest checkpoint")
-    add("-v", "--verbose", type=int, default=1, help="SB3 verbosity (default: 1)")
+    add("-v", "--verbose", type=int, default=0, help="1: SB3's logger tables too (default: 0)")
     return suppress_defaults(parser) if without_defaults else parser
 
 

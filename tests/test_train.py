@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
+import pty
 import signal
+import struct
+import subprocess
+import sys
+import termios
 import time
 import zipfile
 
@@ -76,17 +82,47 @@ def test_default_run_leaves_everything_behind(tmp_path):
     assert frames.std() > 10
     assert (tmp_path / "videos" / video.name).read_bytes() == video.read_bytes()
     assert "last eval" in result.stdout and "steps/s" in result.stdout
+    # Not a terminal: one line per evaluation, and no SB3 logger table.
+    lines = [line for line in result.stderr.splitlines() if "  step " in line]
+    assert [line.split("  ")[1] for line in lines] == ["step 120/240", "step 240/240"]
+    assert all(" eval " in line and "ETA" in line for line in lines)
+    assert "total_timesteps" not in result.stdout
 
 
-def test_tensorboard_events_and_progress_bar(tmp_path):
-    result = run_script(
-        "train.py", "-n", "80", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0",
-        "--tensorboard-log", "tb", "--progress", *TINY, cwd=tmp_path,
+def run_in_terminal(args: list[str], cwd) -> str:
+    """Run train.py with a pseudo-terminal as its stdout and stderr; its output."""
+    main, child = pty.openpty()
+    fcntl.ioctl(child, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    process = subprocess.Popen(
+        [sys.executable, str(REPO / "train.py"), *args],
+        cwd=cwd, stdin=subprocess.DEVNULL, stdout=child, stderr=child,
     )  # fmt: skip
-    assert result.returncode == 0, result.stderr
+    os.close(child)
+    output = b""
+    while True:
+        try:
+            chunk = os.read(main, 4096)
+        except OSError:  # EIO: the child closed the terminal
+            break
+        if not chunk:
+            break
+        output += chunk
+    os.close(main)
+    assert process.wait(timeout=300) == 0, output.decode(errors="replace")[-2000:]
+    return output.decode(errors="replace")
+
+
+def test_a_terminal_gets_a_progress_bar_and_v1_the_logger_tables(tmp_path):
+    args = ["-n", "80", *FAST_SAC, "--eval-freq", "40", "--eval-episodes", "1",
+            "--save-freq", "0", "--env-kwargs", "max_episode_steps=20"]  # fmt: skip
+    shown = run_in_terminal(args, tmp_path)
+    assert "80/80" in shown and "step/s" in shown and "eval " in shown  # the bar, at its end
+    assert "  step 40/80" not in shown and "total_timesteps" not in shown
+    tables = run_script("train.py", *args, "-v", "1", "--tensorboard-log", "tb", cwd=tmp_path)
+    assert tables.returncode == 0, tables.stderr
+    assert "| time/" in tables.stdout and "total_timesteps |" in tables.stdout
     events = list((tmp_path / "tb").rglob("events.out.tfevents.*"))
     assert len(events) == 1 and events[0].stat().st_size > 0
-    assert "80/80" in result.stdout + result.stderr  # the progress bar reached the end
 
 
 def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):

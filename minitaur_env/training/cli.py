@@ -118,7 +118,7 @@ def train_from_args(args: argparse.Namespace, given: set) -> int:
 
     options = dict(
         verbose=args.verbose,
-        progress_bar=args.progress,
+        progress=args.progress,
         num_threads=args.num_threads,
         command=shlex.join(sys.argv),
     )

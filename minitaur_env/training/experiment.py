@@ -230,7 +230,7 @@ class Experiment:
         *,
         resume: bool = False,
         verbose: int = 1,
-        progress_bar: bool = False,
+        progress: str = "auto",
         num_threads: int = 0,
         callbacks: Sequence[BaseCallback] = (),
         after_eval: Sequence[BaseCallback] = (),
@@ -241,7 +241,7 @@ class Experiment:
         self.run_folder = run
         self.resuming = resume
         self.verbose = verbose
-        self.progress_bar = progress_bar
+        self.progress = progress
         self.num_threads = num_threads
         self.extra_callbacks = list(callbacks)
         self.after_eval = list(after_eval)
@@ -423,9 +423,11 @@ class Experiment:
             SaveVecNormalizeCallback,
             VideoRecorderCallback,
         )
+        from minitaur_env.training.progress import TrainingProgress
 
         config, run = self.config, self.run_folder
         callbacks: list[BaseCallback] = [DivergenceGuardCallback()]
+        evaluation = None
         if config.save_freq:
             callbacks.append(CheckpointEveryCallback(run, config.save_freq))
         if config.eval_freq:
@@ -465,6 +467,8 @@ class Experiment:
                     verbose=1,
                 )
             )
+        # After the EvalCallback, so that an evaluation is shown on the step it ends.
+        callbacks.append(TrainingProgress(self.progress, config.n_timesteps, run.name, evaluation))
         return CallbackList(callbacks + self.extra_callbacks)
 
     def close(self) -> None:
@@ -513,7 +517,6 @@ class Experiment:
                             total_timesteps=remaining,
                             callback=callbacks,
                             reset_num_timesteps=not self.resuming,
-                            progress_bar=self.progress_bar,
                         )
                 except ValueError as error:
                     # torch's distributions reject NaN parameters with a ValueError.

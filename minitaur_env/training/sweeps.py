@@ -162,7 +162,10 @@ def run_trial(trial: dict[str, Any]) -> None:
 
     write("running")
     options = dict(
-        verbose=0, num_threads=int(trial.get("num_threads", 1)), after_eval=[_tune_reporter()]
+        verbose=0,
+        progress="lines",
+        num_threads=int(trial.get("num_threads", 1)),
+        after_eval=[_tune_reporter()],
     )
     try:
         earlier = [
