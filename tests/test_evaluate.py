@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +77,7 @@ def test_same_seed_same_statistics_and_stochastic_mode(workdir, best_model):
         (["--load-best"], "best_model.zip"),
         (["--load-last-checkpoint"], "rl_model_200_steps.zip"),
         (["--load-checkpoint", "100"], "rl_model_100_steps.zip"),
-        ([], "final_model.zip"),
+        ([], "MinitaurBulletEnv-v0.zip"),
     ],
 )
 def test_zoo_style_model_selection(workdir, selection, expected):
@@ -85,6 +87,41 @@ def test_zoo_style_model_selection(workdir, selection, expected):
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     assert f"{expected} (sac, observations normalized)" in result.stdout.splitlines()[0]
+
+
+@pytest.mark.parametrize("load_best", [False, True])
+def test_the_zoo_plays_our_run_folders(workdir, load_best):
+    pytest.importorskip("rl_zoo3")
+    result = subprocess.run(
+        [sys.executable, "-m", "rl_zoo3.enjoy", "-f", "logs", "--algo", "sac",
+         "--env", "MinitaurBulletEnv-v0", "--gym-packages", "minitaur_env", "--no-render",
+         "-n", "80", *(["--load-best"] if load_best else [])],
+        cwd=workdir, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    model = "best_model.zip" if load_best else "MinitaurBulletEnv-v0.zip"
+    assert f"Loading logs/sac/MinitaurBulletEnv-v0_1/{model}" in result.stdout
+    assert "Loading running average" in result.stdout  # <env>/vecnormalize.pkl was found
+    # The run's env_kwargs (<env>/args.yml) reached the zoo: 40-step episodes.
+    assert result.stdout.count("Episode Length 40") == 2
+
+
+def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
+    pytest.importorskip("rl_zoo3")
+    result = subprocess.run(
+        [sys.executable, "-m", "minitaur_env.zoo", "record_video", "-f", "logs",
+         "--algo", "sac", "--env", "MinitaurBulletEnv-v0", "-n", "20", "-o", "zoo-videos"],
+        cwd=workdir, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    (video,) = (workdir / "zoo-videos").glob("*.mp4")
+    frames, _ = read_video(video)
+    assert len(frames) >= 20 and frames.std() > 10
+    unknown = subprocess.run([sys.executable, "-m", "minitaur_env.zoo", "no_such_script"],
+                             capture_output=True, text=True)  # fmt: skip
+    assert error_lines(unknown.stderr) == [
+        "minitaur_env.zoo: rl_zoo3 has no script 'no_such_script'"
+    ]
 
 
 def test_render_video_writes_mp4_and_gif(workdir, best_model):

@@ -59,7 +59,7 @@ def test_default_run_leaves_everything_behind(tmp_path):
     model = load_model(SAC, run / "best_model.zip")
     action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
     assert action.shape == (8,) and np.all(np.abs(action) <= 1)
-    assert load_model(SAC, run / "final_model.zip").num_timesteps == 240
+    assert load_model(SAC, run / "MinitaurBulletEnv-v0.zip").num_timesteps == 240
 
     checkpoints = sorted(p.name for p in (run / "checkpoints").iterdir())
     assert checkpoints == [
@@ -140,12 +140,17 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     resumed = run_script("train.py", "--resume", str(run), "-n", "250", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
     assert "for 100 steps (from 150)" in resumed.stdout
-    final = load_model(sbx.SAC, run / "final_model.zip")
+    final = load_model(sbx.SAC, run / "MinitaurBulletEnv-v0.zip")
     assert final.num_timesteps == 250
     final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_250_steps.pkl")
     assert final.replay_buffer.size() == 149 + 99  # the 150-step buffer was resumed
     evaluated = run_script(
-        "evaluate.py", "--model", str(run / "final_model.zip"), "--episodes", "1", cwd=tmp_path
+        "evaluate.py",
+        "--model",
+        str(run / "MinitaurBulletEnv-v0.zip"),
+        "--episodes",
+        "1",
+        cwd=tmp_path,
     )
     assert evaluated.returncode == 0, evaluated.stderr
     assert "(sac, sbx, observations normalized)" in evaluated.stdout
@@ -158,8 +163,8 @@ def test_video_recording_does_not_change_training(tmp_path):
         "train.py", *common, "--video-freq", "60", "--video-length", "10", cwd=tmp_path
     )
     assert plain.returncode == 0 and filmed.returncode == 0, filmed.stderr
-    a = load_model(SAC, run_dir_of(tmp_path, n=1) / "final_model.zip")
-    b = load_model(SAC, run_dir_of(tmp_path, n=2) / "final_model.zip")
+    a = load_model(SAC, run_dir_of(tmp_path, n=1) / "MinitaurBulletEnv-v0.zip")
+    b = load_model(SAC, run_dir_of(tmp_path, n=2) / "MinitaurBulletEnv-v0.zip")
     assert len(list((run_dir_of(tmp_path, n=2) / "videos").glob("*.mp4"))) == 2
     for (name, pa), (_, pb) in zip(
         a.policy.state_dict().items(), b.policy.state_dict().items(), strict=True
@@ -194,7 +199,7 @@ def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
     assert "(from " in result.stdout
     resumed_from = int(result.stdout.split("(from ")[1].split(")")[0])
     assert resumed_from >= saved - 100  # loses at most --save-freq steps
-    final = load_model(SAC, run / "final_model.zip")
+    final = load_model(SAC, run / "MinitaurBulletEnv-v0.zip")
     assert final.num_timesteps == 600
     final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_600_steps.pkl")
     # The pre-kill transitions were kept. SB3 checkpoints a step before storing its
@@ -353,7 +358,7 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
     )  # fmt: skip
     assert extended.returncode == 0, extended.stderr
     assert "for 50 steps (from 100)" in extended.stdout
-    assert load_model(SAC, run_dir_of(tmp_path) / "final_model.zip").num_timesteps == 150
+    assert load_model(SAC, run_dir_of(tmp_path) / "MinitaurBulletEnv-v0.zip").num_timesteps == 150
 
 
 def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
@@ -369,7 +374,7 @@ def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
         model = load_model(SAC, checkpoint)
         for parameter in model.policy.parameters():
             assert parameter.isfinite().all(), checkpoint.name
-    assert not (run_dir_of(tmp_path) / "final_model.zip").exists()
+    assert not (run_dir_of(tmp_path) / "MinitaurBulletEnv-v0.zip").exists()
 
 
 def test_generic_on_cartpole_with_ppo(tmp_path):
@@ -387,7 +392,7 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
         assert len(evaluations["timesteps"]) == 2
     assert zipfile.is_zipfile(run / "checkpoints" / "rl_model_128_steps.zip")
     # VecNormalize statistics travel with the final, best and checkpointed models.
-    assert (run / "final_model_vecnormalize.pkl").is_file()
+    assert (run / "CartPole-v1" / "vecnormalize.pkl").is_file()
     assert (run / "best_model_vecnormalize.pkl").is_file()
     assert (run / "checkpoints" / "rl_model_vecnormalize_128_steps.pkl").is_file()
     evaluated = run_script("evaluate.py", "--model", str(run / "best_model.zip"),

@@ -188,12 +188,13 @@ class VideoRecorderCallback(BaseCallback):
 class SaveVecNormalizeCallback(BaseCallback):
     """Save the training env's VecNormalize statistics (as EvalCallback's new-best hook)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, *paths: str | Path) -> None:
         super().__init__()
-        self.path = Path(path)
+        self.paths = [Path(path) for path in paths]
 
     def _on_step(self) -> bool:
         normalizer = self.model.get_vec_normalize_env()
         if normalizer is not None:
-            normalizer.save(str(self.path))
+            for path in self.paths:
+                normalizer.save(str(path))
         return True

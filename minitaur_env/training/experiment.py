@@ -433,7 +433,11 @@ class Experiment:
         if config.eval_freq:
             on_new_best = None
             if config.normalize:
-                on_new_best = SaveVecNormalizeCallback(run.vecnormalize_beside(run.best_model))
+                # The zoo's enjoy --load-best reads <env>/vecnormalize.pkl, as the zoo
+                # itself writes it: the best model's until the final model's replaces it.
+                on_new_best = SaveVecNormalizeCallback(
+                    run.vecnormalize_beside(run.best_model), run.zoo_vecnormalize
+                )
             evaluation = EvalCallback(
                 self.eval_env,
                 n_eval_episodes=config.eval_episodes,
@@ -547,10 +551,10 @@ class Experiment:
                 if self.config.save_freq and (not newest or newest[0][0] != model.num_timesteps):
                     # With its replay buffer, so that --resume -n can extend the run exactly.
                     save_checked_checkpoint(model, run)
-                model.save(run.final_model)
+                model.save(run.zoo_model)
                 normalizer = model.get_vec_normalize_env()
                 if normalizer is not None:
-                    normalizer.save(str(run.vecnormalize_beside(run.final_model)))
+                    normalizer.save(str(run.zoo_vecnormalize))
             result = RunResult(
                 status, run, model.num_timesteps, model.num_timesteps - start_steps, elapsed,
                 checkpoint=checkpoint, signal=stop_signal, message=message,

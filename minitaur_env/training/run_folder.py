@@ -41,7 +41,10 @@ class RunFolder:
         config.yml, command.txt        resolved configuration, command line(s)
         evaluations.npz                EvalCallback: timesteps, results, ep_lengths
         best_model.zip                 (+ best_model_vecnormalize.pkl)
-        final_model.zip                (+ final_model_vecnormalize.pkl)
+        <env>.zip                      the final model (rl-baselines3-zoo's name)
+        <env>/                         the zoo's files: config.yml, args.yml, env_kwargs.yml,
+                                       vecnormalize.pkl (the final model's, or the best's
+                                       until the run ends)
         checkpoints/                   rl_model_<N>_steps.zip, replay buffers, VecNormalize
         monitor/<i>.monitor.csv        per-episode return/length of each training env
         progress.csv                   SB3 logger (progress-resumed-at-<N>.csv after a resume)
@@ -127,8 +130,28 @@ class RunFolder:
         return self.path / "best_model.zip"
 
     @property
+    def env_name(self) -> str:
+        return self.path.name.rsplit("_", 1)[0]
+
+    @property
+    def zoo_model(self) -> Path:
+        """``<env>.zip``: where the final model is saved, under the zoo's name for it."""
+        return self.path / f"{self.env_name}.zip"
+
+    @property
     def final_model(self) -> Path:
-        return self.path / "final_model.zip"
+        """The final model: ``<env>.zip`` (``final_model.zip`` in runs made before)."""
+        legacy = self.path / "final_model.zip"
+        return legacy if legacy.is_file() and not self.zoo_model.is_file() else self.zoo_model
+
+    @property
+    def zoo_dir(self) -> Path:
+        """``<env>/``: where rl-baselines3-zoo's enjoy and record_video look for settings."""
+        return self.path / self.env_name
+
+    @property
+    def zoo_vecnormalize(self) -> Path:
+        return self.zoo_dir / "vecnormalize.pkl"
 
     @property
     def monitor_dir(self) -> Path:
@@ -163,12 +186,14 @@ class RunFolder:
 
     @staticmethod
     def vecnormalize_beside(model: Path) -> Path:
-        """Where the VecNormalize statistics of a best/final model zip are kept."""
+        """Where the VecNormalize statistics of a best model zip (or a legacy final) are kept."""
         return model.with_name(f"{model.stem}_vecnormalize.pkl")
 
     def vecnormalize_for(self, model: Path) -> Path | None:
         """The VecNormalize statistics saved with ``model`` (a zip of this run), if any."""
         candidates = [self.vecnormalize_beside(model)]
+        if model == self.zoo_model:
+            candidates = [self.zoo_vecnormalize]
         match = _CHECKPOINT.match(model.name)
         if match and model.parent == self.checkpoint_dir:
             candidates.append(self.vecnormalize(int(match.group(1))))
@@ -211,9 +236,21 @@ class RunFolder:
         return config
 
     def write_config(self, config: dict[str, Any]) -> None:
-        temporary = self.config.with_suffix(".yml.tmp")
-        temporary.write_text(yaml.safe_dump(config, sort_keys=False))
-        temporary.replace(self.config)
+        """config.yml, and the same settings in the zoo's files under ``<env>/``."""
+        _write_yaml(self.config, config, sort_keys=False)
+        self.zoo_dir.mkdir(exist_ok=True)
+        hyperparams = {
+            **config["hyperparams"],
+            "policy": config["policy"],
+            "n_timesteps": config["n_timesteps"],
+            "n_envs": config["n_envs"],
+            "normalize": config["normalize"],
+        }
+        _write_yaml(self.zoo_dir / "config.yml", hyperparams)
+        zoo_args = ("algo", "env", "seed", "n_timesteps", "eval_freq", "eval_episodes",
+                    "save_freq", "env_kwargs", "device")  # fmt: skip
+        _write_yaml(self.zoo_dir / "args.yml", {key: config[key] for key in zoo_args})
+        _write_yaml(self.zoo_dir / "env_kwargs.yml", config["env_kwargs"] or {})
 
     def rewind_logs(self, steps: int) -> None:
         """Forget evaluations and training episodes logged after env step ``steps``.
@@ -255,6 +292,12 @@ class RunFolder:
     def append_command(self, command: str) -> None:
         with self.command.open("a") as handle:
             handle.write(command + "\n")
+
+
+def _write_yaml(path: Path, content: dict[str, Any], sort_keys: bool = True) -> None:
+    temporary = path.with_suffix(".yml.tmp")
+    temporary.write_text(yaml.safe_dump(content, sort_keys=sort_keys))
+    temporary.replace(path)
 
 
 def _monitor_time_and_length(line: str) -> tuple[float, int]:
