@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from stable_baselines3 import PPO
 
 from minitaur_env.training.video import read_video
@@ -121,6 +122,46 @@ def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
                              capture_output=True, text=True)  # fmt: skip
     assert error_lines(unknown.stderr) == [
         "minitaur_env.zoo: rl_zoo3 has no script 'no_such_script'"
+    ]
+
+
+def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, best_model):
+    hub = pytest.importorskip("huggingface_hub")
+    result = subprocess.run(
+        [sys.executable, "-m", "minitaur_env.package", str(best_model.parent), "-o", "hub",
+         "--episodes", "2", "--video-steps", "20"],
+        cwd=workdir, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    folder = workdir / "hub" / "sac-MinitaurBulletEnv-v0"
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "README.md", "config.yml", "env_kwargs.yml", "replay.mp4", "results.json",
+        "sac-MinitaurBulletEnv-v0.zip", "vec_normalize.pkl",
+    ]  # fmt: skip
+    assert (folder / "sac-MinitaurBulletEnv-v0.zip").read_bytes() == best_model.read_bytes()
+    results = json.loads((folder / "results.json").read_text())
+    assert results["n_eval_episodes"] == 2 and results["is_deterministic"] is True
+    card = hub.ModelCard.load(folder / "README.md").data.to_dict()
+    assert card["library_name"] == "stable-baselines3"
+    assert "MinitaurBulletEnv-v0" in card["tags"] and "reinforcement-learning" in card["tags"]
+    (index,) = card["model-index"]
+    metric = index["results"][0]["metrics"][0]
+    assert metric["type"] == "mean_reward" and metric["value"] == (
+        f"{results['mean_reward']:.2f} +/- {results['std_reward']:.2f}"
+    )
+    assert index["results"][0]["dataset"]["name"] == "MinitaurBulletEnv-v0"
+    assert "sac-MinitaurBulletEnv-v0.zip" in (folder / "README.md").read_text()  # usage code
+    assert yaml.safe_load((folder / "config.yml").read_text())["normalize"] is True
+    frames, _ = read_video(folder / "replay.mp4")
+    assert len(frames) >= 10 and frames.std() > 10
+    # The packaged zip plays with its statistics, found under the Hub's file name.
+    played = run_script("evaluate.py", "--model", str(folder / "sac-MinitaurBulletEnv-v0.zip"),
+                        "--episodes", "1", *SHORT, cwd=workdir)  # fmt: skip
+    assert played.returncode == 0 and "observations normalized" in played.stdout
+    missing = subprocess.run([sys.executable, "-m", "minitaur_env.package", "no/such/run"],
+                             cwd=workdir, capture_output=True, text=True)  # fmt: skip
+    assert error_lines(missing.stderr) == [
+        "minitaur_env.package: error: model file not found: no/such/run"
     ]
 
 

@@ -63,7 +63,7 @@ def infer_algo(path: Path) -> tuple[str, str]:
     raise UsageError(f"cannot tell the algorithm of {path} ({module!r}); pass --algo")
 
 
-def _normalizer_for(model_path: Path) -> Path | None:
+def normalizer_path_for(model_path: Path) -> Path | None:
     """The VecNormalize statistics saved beside a model (or with its checkpoint), if any."""
     run = RunFolder(
         model_path.parents[1] if model_path.parent.name == "checkpoints" else model_path.parent
@@ -71,7 +71,7 @@ def _normalizer_for(model_path: Path) -> Path | None:
     return run.vecnormalize_for(model_path)
 
 
-def _run_config(model_path: Path) -> dict[str, Any]:
+def run_config(model_path: Path) -> dict[str, Any]:
     model_path = model_path.resolve()
     for folder in (model_path.parent, model_path.parent.parent):
         config = folder / "config.yml"
@@ -86,7 +86,7 @@ def _run_config(model_path: Path) -> dict[str, Any]:
 def load_policy(model_path: Path, algo: str | None = None, device: str = "auto") -> LoadedPolicy:
     if not model_path.is_file():
         raise UsageError(f"model file not found: {model_path}")
-    config = _run_config(model_path)
+    config = run_config(model_path)
     inferred_algo, backend = infer_algo(model_path)
     algo = algo or config.get("algo") or inferred_algo
     backend = config.get("backend", backend)
@@ -95,7 +95,7 @@ def load_policy(model_path: Path, algo: str | None = None, device: str = "auto")
         model = load_model(cls, model_path, device=device)
     except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
         raise UsageError(f"cannot load {model_path} as a {algo} model: {error}") from error
-    stats = _normalizer_for(model_path)
+    stats = normalizer_path_for(model_path)
     normalizer = None
     if stats is not None:
         normalizer = load_pickle(stats)

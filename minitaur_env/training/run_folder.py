@@ -13,6 +13,7 @@ import yaml
 
 from minitaur_env.training import UsageError
 
+HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's push_to_hub)
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
 _REPLAY_BUFFER = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
@@ -191,9 +192,9 @@ class RunFolder:
 
     def vecnormalize_for(self, model: Path) -> Path | None:
         """The VecNormalize statistics saved with ``model`` (a zip of this run), if any."""
-        candidates = [self.vecnormalize_beside(model)]
+        candidates = [self.vecnormalize_beside(model), model.parent / HUB_VECNORMALIZE]
         if model == self.zoo_model:
-            candidates = [self.zoo_vecnormalize]
+            candidates.insert(0, self.zoo_vecnormalize)
         match = _CHECKPOINT.match(model.name)
         if match and model.parent == self.checkpoint_dir:
             candidates.append(self.vecnormalize(int(match.group(1))))
@@ -239,14 +240,7 @@ class RunFolder:
         """config.yml, and the same settings in the zoo's files under ``<env>/``."""
         _write_yaml(self.config, config, sort_keys=False)
         self.zoo_dir.mkdir(exist_ok=True)
-        hyperparams = {
-            **config["hyperparams"],
-            "policy": config["policy"],
-            "n_timesteps": config["n_timesteps"],
-            "n_envs": config["n_envs"],
-            "normalize": config["normalize"],
-        }
-        _write_yaml(self.zoo_dir / "config.yml", hyperparams)
+        _write_yaml(self.zoo_dir / "config.yml", zoo_hyperparams(config))
         zoo_args = ("algo", "env", "seed", "n_timesteps", "eval_freq", "eval_episodes",
                     "save_freq", "env_kwargs", "device")  # fmt: skip
         _write_yaml(self.zoo_dir / "args.yml", {key: config[key] for key in zoo_args})
@@ -292,6 +286,15 @@ class RunFolder:
     def append_command(self, command: str) -> None:
         with self.command.open("a") as handle:
             handle.write(command + "\n")
+
+
+def zoo_hyperparams(config: dict[str, Any]) -> dict[str, Any]:
+    """A run's config.yml as the zoo's ``<env>/config.yml`` holds it: one flat entry."""
+    return {
+        **config.get("hyperparams", {}),
+        **{key: config[key] for key in ("policy", "n_timesteps", "n_envs", "normalize")
+           if key in config},
+    }  # fmt: skip
 
 
 def _write_yaml(path: Path, content: dict[str, Any], sort_keys: bool = True) -> None:

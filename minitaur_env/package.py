@@ -1,0 +1,54 @@
+"""Write a trained agent as a Hugging Face Hub model folder, offline.
+
+    python -m minitaur_env.package logs/sac/MinitaurBulletEnv-v0_3      # its best model
+    python -m minitaur_env.package pretrained/sac/MinitaurBulletEnv-v0_1/best_model.zip -o hub
+
+writes ``<out>/<algo>-<env>/``: the model zip, config.yml, env_kwargs.yml,
+vec_normalize.pkl, results.json (20 unseen episodes), replay.mp4 and a README.md model
+card, the layout of rl-baselines3-zoo's push_to_hub. Push it yourself, e.g.
+``huggingface-cli upload <user>/sac-MinitaurBulletEnv-v0 hub/sac-MinitaurBulletEnv-v0``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from minitaur_env.training import UsageError
+from minitaur_env.training.cli import OneLineErrorParser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = OneLineErrorParser(
+        prog="python -m minitaur_env.package",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add = parser.add_argument
+    add("run_or_model", type=Path, help="a run folder (its best model) or a model zip")
+    add("-o", "--out", type=Path, default=Path("hub"), help="parent folder (default: hub)")
+    add("--env", help="env id (default: the one the model was trained on)")
+    add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
+    add("--seed", type=int, default=12345, help="seed of episode 0 (default: 12345)")
+    add("--video-steps", type=int, default=1000, help="env steps in replay.mp4 (default: 1000)")
+    args = parser.parse_args(argv)
+    try:
+        from minitaur_env.training.hub import package_for_hub
+
+        folder = package_for_hub(
+            args.run_or_model, args.out, args.env, args.episodes, args.seed, args.video_steps
+        )
+    except UsageError as error:
+        print(f"minitaur_env.package: error: {error}", file=sys.stderr)
+        return 2
+    except ImportError as error:
+        print(f"minitaur_env.package: error: {error} (pip install 'minitaur-env[zoo]')",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    print(f"hub folder: {folder}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

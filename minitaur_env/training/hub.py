@@ -1,0 +1,193 @@
+"""A trained agent as a Hugging Face Hub model folder, in the layout of the zoo's push_to_hub.
+
+Written offline: the model evaluated on unseen seeds, a replay video and a model card
+whose ``model-index`` the Hub reads (huggingface_hub's ``metadata_eval_result``). Pushing
+is the user's step, e.g. ``huggingface-cli upload <user>/<folder name> <folder>``.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from datetime import datetime
+from pathlib import Path
+from pprint import pformat
+from typing import Any
+
+import yaml
+
+from minitaur_env.training import UsageError
+from minitaur_env.training.evaluation import (
+    LoadedPolicy,
+    load_policy,
+    normalizer_path_for,
+    run_config,
+    run_episodes,
+    summarize,
+)
+from minitaur_env.training.run_folder import HUB_VECNORMALIZE, RunFolder, zoo_hyperparams
+
+ALGO_CLASS_NAMES = {"sac": "SAC", "tqc": "TQC", "ppo": "PPO", "a2c": "A2C", "td3": "TD3",
+                    "ddpg": "DDPG", "crossq": "CrossQ", "dqn": "DQN"}  # fmt: skip
+
+
+def model_of(run_or_model: Path) -> Path:
+    """A model zip as given, or a run folder's best model (its final one if it has none)."""
+    if run_or_model.is_dir():
+        run = RunFolder.existing(run_or_model)
+        return run.best_model if run.best_model.is_file() else run.final_model
+    return run_or_model
+
+
+def package_for_hub(
+    run_or_model: Path,
+    out_dir: Path,
+    env_id: str | None = None,
+    episodes: int = 20,
+    seed: int = 12345,
+    video_steps: int = 1000,
+) -> Path:
+    """Write ``<out_dir>/<algo>-<env>/`` and return it."""
+    from minitaur_env.training.envs import make_env
+    from minitaur_env.training.video import record_video
+
+    if episodes < 1:
+        raise UsageError("--episodes must be >= 1: the model card reports an evaluation")
+    policy = load_policy(model_of(run_or_model))
+    env_id = env_id or policy.env_id
+    if not env_id:
+        raise UsageError(f"{policy.path}: no run config names its env; pass --env")
+    env_name = env_id.split(":")[-1]
+    folder = out_dir / f"{policy.algo}-{env_name}"
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(policy.path, folder / f"{policy.algo}-{env_name}.zip")
+    stats = normalizer_path_for(policy.path)
+    if stats is not None:
+        shutil.copyfile(stats, folder / HUB_VECNORMALIZE)
+    config = run_config(policy.path)
+    (folder / "config.yml").write_text(yaml.safe_dump(zoo_hyperparams(config)))
+    (folder / "env_kwargs.yml").write_text(yaml.safe_dump(policy.env_kwargs))
+
+    # Judged on the registered episode length, whatever the training run used.
+    env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
+    env = make_env(env_id, env_kwargs)
+    try:
+        records = run_episodes(policy, env, episodes, seed)
+    finally:
+        env.close()
+    summary = summarize(records)
+    results = {
+        "mean_reward": summary["return"]["mean"],
+        "std_reward": summary["return"]["std"],
+        "is_deterministic": True,
+        "n_eval_episodes": episodes,
+        "eval_datetime": datetime.now().isoformat(),
+        "eval_seeds": f"{seed}..{seed + episodes - 1}",
+        "falls": int(summary["fell"]["count"]),
+    }
+    (folder / "results.json").write_text(json.dumps(results, indent=2))
+
+    env = make_env(env_id, env_kwargs, render_mode="rgb_array")
+    try:
+        record_video(env, policy.act, folder / "replay.mp4", max_steps=video_steps, seed=seed)
+    finally:
+        env.close()
+    _model_card(policy, env_id, folder, config, results).save(folder / "README.md")
+    return folder
+
+
+def training_command(model: Path, config: dict[str, Any]) -> str:
+    """The command that trained ``model``: its run's command.txt, or its provenance's."""
+    for folder in (model.parent, model.parent.parent):
+        command = RunFolder(folder).command
+        if command.is_file():
+            return command.read_text().strip()
+    training = config.get("training")
+    return str(training.get("command", "")) if isinstance(training, dict) else ""
+
+
+def _model_card(
+    policy: LoadedPolicy,
+    env_id: str,
+    folder: Path,
+    config: dict[str, Any],
+    results: dict[str, Any],
+) -> Any:
+    from huggingface_hub import ModelCard, ModelCardData
+    from huggingface_hub.repocard import metadata_eval_result
+
+    algo_class = ALGO_CLASS_NAMES.get(policy.algo, policy.algo.upper())
+    mean, std = results["mean_reward"], results["std_reward"]
+    metadata = metadata_eval_result(
+        model_pretty_name=algo_class,
+        task_pretty_name="reinforcement-learning",
+        task_id="reinforcement-learning",
+        metrics_pretty_name="mean_reward",
+        metrics_id="mean_reward",
+        metrics_value=f"{mean:.2f} +/- {std:.2f}",
+        dataset_pretty_name=env_id,
+        dataset_id=env_id,
+    )
+    data = ModelCardData(
+        library_name="stable-baselines3",
+        tags=[
+            env_id,
+            "deep-reinforcement-learning",
+            "reinforcement-learning",
+            "stable-baselines3",
+            "pybullet",
+            "minitaur",
+        ],
+        **metadata,
+    )
+    module = {"tqc": "sb3_contrib"}.get(policy.algo, "stable_baselines3")
+    name = folder.name
+    if policy.normalizer is not None:
+        normalization = (
+            f'env = VecNormalize.load(load_from_hub("<user>/{name}", "vec_normalize.pkl"), env)\n'
+            "env.training, env.norm_reward = False, False\n"
+        )
+    else:
+        normalization = ""
+    body = f"""
+# **{algo_class}** agent playing **{env_id}**
+
+A {algo_class} policy trained with [Stable-Baselines3](https://github.com/DLR-RM/stable-baselines3)
+on minitaur-env, a gymnasium port of PyBullet's Minitaur. Evaluated on
+{results["n_eval_episodes"]} deterministic episodes whose seeds ({results["eval_seeds"]})
+training never used, with the env's raw classic return: **{mean:.2f} ± {std:.2f}**,
+{results["falls"]} falls.
+
+## Usage
+
+```python
+import gymnasium as gym
+import minitaur_env  # registers {env_id}
+from huggingface_sb3 import load_from_hub
+from {module} import {algo_class}
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+model = {algo_class}.load(load_from_hub("<user>/{name}", "{name}.zip"))
+env = DummyVecEnv([lambda: gym.make("{env_id}")])
+{normalization}obs = env.reset()
+for _ in range(1000):
+    action, _ = model.predict(obs, deterministic=True)
+    obs, reward, done, info = env.step(action)
+```
+
+With minitaur-env's scripts: `python evaluate.py --model {name}.zip --episodes 20`
+(it finds `vec_normalize.pkl` beside the zip).
+
+## Training
+
+```
+{training_command(policy.path, config)}
+```
+
+## Hyperparameters
+
+```python
+{pformat(zoo_hyperparams(config))}
+```
+"""
+    return ModelCard(f"---\n{data.to_yaml()}\n---\n{body}")
