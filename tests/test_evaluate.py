@@ -204,11 +204,15 @@ def test_default_policy_is_the_best_shipped_one_else_the_latest_run(tmp_path, mo
 
     shipped = tmp_path / "pretrained"
     shipped.mkdir()
-    for name, score in (("sac_a", 3.5), ("ppo_b", 12.0), ("tqc_c", 7.0)):
-        (shipped / f"{name}.zip").write_bytes(b"")
-        (shipped / f"{name}.yml").write_text(f"eval_mean_return: {score}\n")
+    for algo, score in (("sac", 3.5), ("ppo", 12.0), ("tqc", 7.0)):
+        run = shipped / algo / "MinitaurBulletEnv-v0_1"
+        run.mkdir(parents=True)
+        (run / "MinitaurBulletEnv-v0.zip").write_bytes(b"")
+        (run / "provenance.yml").write_text(f"eval_mean_return: {score}\n")
     monkeypatch.setattr(evaluation, "PRETRAINED_DIR", shipped)
-    assert evaluation.find_model(None, None, None).name == "ppo_b.zip"
+    assert evaluation.find_model(None, None, None) == (
+        shipped / "ppo" / "MinitaurBulletEnv-v0_1" / "MinitaurBulletEnv-v0.zip"
+    )
 
     monkeypatch.setattr(evaluation, "PRETRAINED_DIR", tmp_path / "nothing-shipped")
     monkeypatch.chdir(tmp_path)

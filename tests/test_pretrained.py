@@ -14,7 +14,7 @@ SHIPPED = [path for _, path in pretrained_models()]
 def test_something_is_shipped_with_provenance():
     assert SHIPPED, f"no policy in {PRETRAINED_DIR}"
     for path in SHIPPED:
-        provenance = yaml.safe_load(path.with_suffix(".yml").read_text())
+        provenance = yaml.safe_load((path.parent / "provenance.yml").read_text())
         for key in ("algo", "env", "eval_mean_return", "eval_episodes", "training"):
             assert key in provenance, (path.name, key)
 
@@ -29,7 +29,22 @@ def test_shipped_policy_walks_forward_without_falling(path):
         obs, _, terminated, _, info = env.step(policy.act(obs))
         assert not terminated
     speed = (info["base_position"][0] - start) / 3.0
-    claimed = yaml.safe_load(path.with_suffix(".yml").read_text())["eval_mean_return"]
+    claimed = yaml.safe_load((path.parent / "provenance.yml").read_text())["eval_mean_return"]
     # The return is about metres walked in 10 s: the first 3 s should show a good part of it.
     assert speed > 0.5 * claimed / 10, f"{speed:.2f} m/s for a claimed return of {claimed}"
     env.close()
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.parent.parent.name for p in SHIPPED])
+def test_each_shipped_agent_has_a_hub_folder_that_agrees_with_its_provenance(path):
+    hub = pytest.importorskip("huggingface_hub")
+    provenance = yaml.safe_load((path.parent / "provenance.yml").read_text())
+    name = f"{provenance['algo']}-{provenance['env']}"
+    folder = PRETRAINED_DIR / "hub" / name
+    assert (folder / f"{name}.zip").read_bytes() == path.read_bytes()
+    card = hub.ModelCard.load(folder / "README.md").data.to_dict()
+    metric = card["model-index"][0]["results"][0]["metrics"][0]
+    mean, std = provenance["eval_mean_return"], provenance["eval_std_return"]
+    card_mean, _, card_std = metric["value"].split()
+    assert abs(float(card_mean) - mean) <= 0.01 and abs(float(card_std) - std) <= 0.01
+    assert (folder / "replay.mp4").stat().st_size > 10_000

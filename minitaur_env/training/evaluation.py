@@ -77,9 +77,6 @@ def run_config(model_path: Path) -> dict[str, Any]:
         config = folder / "config.yml"
         if config.is_file():
             return yaml.safe_load(config.read_text()) or {}
-    provenance = model_path.with_suffix(".yml")
-    if provenance.is_file():
-        return yaml.safe_load(provenance.read_text()) or {}
     return {}
 
 
@@ -113,15 +110,18 @@ def load_policy(model_path: Path, algo: str | None = None, device: str = "auto")
 
 
 def pretrained_models(folder: Path | None = None) -> list[tuple[float, Path]]:
-    """(eval mean return, zip) of the shipped policies, best first."""
+    """(eval mean return, model zip) of the shipped policies, best first.
+
+    Each lives in a zoo-style run folder, ``pretrained/<algo>/<env>_<N>/``, whose
+    ``<env>.zip`` is the shipped model and ``provenance.yml`` says how it was made.
+    """
     folder = PRETRAINED_DIR if folder is None else folder
     found = []
-    if folder.is_dir():
-        for provenance in folder.glob("*.yml"):
-            model = provenance.with_suffix(".zip")
-            info = yaml.safe_load(provenance.read_text()) or {}
-            if model.is_file():
-                found.append((float(info.get("eval_mean_return", -np.inf)), model))
+    for provenance in folder.glob("*/*/provenance.yml"):
+        run = RunFolder(provenance.parent)
+        info = yaml.safe_load(provenance.read_text()) or {}
+        if run.zoo_model.is_file():
+            found.append((float(info.get("eval_mean_return", -np.inf)), run.zoo_model))
     return sorted(found, key=lambda item: item[0], reverse=True)
 
 

@@ -87,23 +87,28 @@ def package_for_hub(
     }
     (folder / "results.json").write_text(json.dumps(results, indent=2))
 
-    env = make_env(env_id, env_kwargs, render_mode="rgb_array")
+    # Small enough to commit beside the model: 480x360 at 25 fps.
+    env = make_env(env_id, env_kwargs, render_mode="rgb_array", width=480, height=360)
     try:
-        record_video(env, policy.act, folder / "replay.mp4", max_steps=video_steps, seed=seed)
+        record_video(
+            env, policy.act, folder / "replay.mp4", max_steps=video_steps, fps=25, seed=seed
+        )
     finally:
         env.close()
     _model_card(policy, env_id, folder, config, results).save(folder / "README.md")
     return folder
 
 
-def training_command(model: Path, config: dict[str, Any]) -> str:
-    """The command that trained ``model``: its run's command.txt, or its provenance's."""
+def training_command(model: Path) -> str:
+    """The command that trained ``model``: a shipped agent's provenance, or its run's."""
     for folder in (model.parent, model.parent.parent):
-        command = RunFolder(folder).command
-        if command.is_file():
-            return command.read_text().strip()
-    training = config.get("training")
-    return str(training.get("command", "")) if isinstance(training, dict) else ""
+        run = RunFolder(folder)
+        if run.provenance.is_file():
+            training = yaml.safe_load(run.provenance.read_text()).get("training") or {}
+            return str(training.get("command", ""))
+        if run.command.is_file():
+            return run.command.read_text().strip()
+    return ""
 
 
 def _model_card(
@@ -181,7 +186,7 @@ With minitaur-env's scripts: `python evaluate.py --model {name}.zip --episodes 2
 ## Training
 
 ```
-{training_command(policy.path, config)}
+{training_command(policy.path)}
 ```
 
 ## Hyperparameters

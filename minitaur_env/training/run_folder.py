@@ -50,6 +50,7 @@ class RunFolder:
         monitor/<i>.monitor.csv        per-episode return/length of each training env
         progress.csv                   SB3 logger (progress-resumed-at-<N>.csv after a resume)
         learning_curve.png, videos/
+        provenance.yml                 shipped agents only (pretrained/<algo>/<env>_1/)
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -157,6 +158,11 @@ class RunFolder:
     @property
     def monitor_dir(self) -> Path:
         return self.path / "monitor"
+
+    @property
+    def provenance(self) -> Path:
+        """Only in a shipped agent's folder (pretrained/): how it was trained and judged."""
+        return self.path / "provenance.yml"
 
     @property
     def learning_curve(self) -> Path:
