@@ -1,0 +1,91 @@
+"""Pick a run's policy to ship without peeking at the seeds it is reported on.
+
+Each candidate (the best model, the final model and the checkpoints from ``--from-steps``
+on) plays ``--episodes`` deterministic episodes on selection seeds (default 5000..), which
+neither training (seeds 0.., eval env seeds offset by 10000) nor the README's report seeds
+(12345..) use. The candidate with the highest mean among those with the fewest falls is
+selected, and only then played on the report seeds. Per run, the best and final models
+are also reported on the report seeds: the learning target's figure.
+
+    python benchmarks/select_policy.py logs/screen/sac/MinitaurBulletEnv-v0_{3,4,5} \\
+        --from-steps 200000 --json benchmarks/results/sac-selection.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from minitaur_env.training.envs import make_env
+from minitaur_env.training.evaluation import load_policy, run_episodes, summarize
+from minitaur_env.training.run_folder import RunFolder
+
+
+def judge(model: Path, episodes: int, seed: int) -> dict[str, float]:
+    policy = load_policy(model, device="cpu")
+    env = make_env(policy.env_id or "MinitaurBulletEnv-v0", {})
+    try:
+        summary = summarize(run_episodes(policy, env, episodes, seed))
+    finally:
+        env.close()
+    return {
+        "mean": summary["return"]["mean"],
+        "std": summary["return"]["std"],
+        "falls": int(summary["fell"]["count"]),
+        "speed": summary["speed"]["mean"],
+    }
+
+
+def candidates(run: RunFolder, from_steps: int) -> list[Path]:
+    found = [run.best_model, run.final_model]
+    found += [path for steps, path in run.checkpoints() if steps >= from_steps]
+    return [path for path in found if path.is_file()]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--from-steps", type=int, default=200_000)
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--select-seed", type=int, default=5000)
+    parser.add_argument("--report-seed", type=int, default=12345)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+
+    report: dict = {"select_seed": args.select_seed, "report_seed": args.report_seed,
+                    "episodes": args.episodes, "runs": {}, "selection": {}}  # fmt: skip
+    print(f"selection seeds {args.select_seed}.., report seeds {args.report_seed}.., "
+          f"{args.episodes} deterministic episodes each")  # fmt: skip
+    for run_path in args.runs:
+        run = RunFolder.existing(run_path)
+        per_run = report["runs"][str(run)] = {}
+        for name, model in (("best", run.best_model), ("final", run.final_model)):
+            if model.is_file():
+                per_run[name] = judge(model, args.episodes, args.report_seed)
+                r = per_run[name]
+                print(f"{run}  {name:5s} model on report seeds: {r['mean']:6.2f} ± "
+                      f"{r['std']:.2f}, {r['falls']} falls, {r['speed']:.2f} m/s")  # fmt: skip
+        for model in candidates(run, args.from_steps):
+            result = judge(model, args.episodes, args.select_seed)
+            report["selection"][str(model)] = result
+            print(f"  candidate {model}: {result['mean']:6.2f} ± {result['std']:.2f}, "
+                  f"{result['falls']} falls (selection seeds)")  # fmt: skip
+    chosen = max(report["selection"], key=lambda m: (-report["selection"][m]["falls"],
+                                                     report["selection"][m]["mean"]))  # fmt: skip
+    reported = judge(Path(chosen), args.episodes, args.report_seed)
+    report["chosen"] = {"model": chosen, "report": reported}
+    print(f"chosen: {chosen}: {reported['mean']:.2f} ± {reported['std']:.2f}, "
+          f"{reported['falls']} falls, {reported['speed']:.2f} m/s on the report seeds")
+    finals = [r["final"]["mean"] for r in report["runs"].values() if "final" in r]
+    bests = [r["best"]["mean"] for r in report["runs"].values() if "best" in r]
+    print(f"median over {len(bests)} runs: best model {np.median(bests):.2f}, "
+          f"final model {np.median(finals):.2f} (report seeds)")  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
