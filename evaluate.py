@@ -10,8 +10,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from minitaur_env.training.algorithms import ALGORITHMS
-from minitaur_env.training.cli import OneLineErrorParser
+from minitaur_env.training import missing_dependency
+
+try:
+    from minitaur_env.training.algorithms import ALGORITHMS
+    from minitaur_env.training.cli import OneLineErrorParser
+except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
+    sys.exit(missing_dependency("evaluate.py", error))
 
 DEFAULT_ENV = "MinitaurBulletEnv-v0"
 

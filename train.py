@@ -14,15 +14,20 @@ from __future__ import annotations
 import argparse
 import sys
 
-from minitaur_env.training.cli import (
-    OneLineErrorParser,
-    add_experiment_arguments,
-    given_flags,
-    suppress_defaults,
-    train_from_args,
-)
-from minitaur_env.training.envs import VEC_ENVS
-from minitaur_env.training.progress import PROGRESS_MODES
+from minitaur_env.training import missing_dependency
+
+try:
+    from minitaur_env.training.cli import (
+        OneLineErrorParser,
+        add_experiment_arguments,
+        given_flags,
+        suppress_defaults,
+        train_from_args,
+    )
+    from minitaur_env.training.envs import VEC_ENVS
+    from minitaur_env.training.progress import PROGRESS_MODES
+except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
+    sys.exit(missing_dependency("train.py", error))
 
 
 def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:

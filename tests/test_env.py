@@ -494,3 +494,34 @@ def test_on_rack_holds_the_base_in_the_air():
         assert not terminated
     assert info["base_position"][2] > 0.5
     env.close()
+
+
+TRAINING_MODULES = ("stable_baselines3", "sb3_contrib", "torch", "yaml", "matplotlib",
+                    "imageio", "tqdm", "rich")  # fmt: skip
+WITHOUT_TRAINING = (
+    "import sys\n"
+    f"for name in {TRAINING_MODULES!r}:\n"
+    "    sys.modules[name] = None  # as if not installed\n"
+)
+
+
+def test_the_env_alone_needs_neither_sb3_nor_torch_and_the_scripts_say_what_is_missing():
+    import subprocess
+    import sys
+
+    from tests.scripts import REPO, error_lines
+
+    play = "import gymnasium as gym, minitaur_env\nenv = gym.make('MinitaurBulletEnv-v0')\n"
+    play += "obs, _ = env.reset(seed=0)\nprint(obs.shape, env.step(env.action_space.sample())[1])"
+    result = subprocess.run([sys.executable, "-c", WITHOUT_TRAINING + play],
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("(28,) ")
+    for script in ("train.py", "evaluate.py"):
+        run = f"import runpy\nsys.argv = ['{script}']\nrunpy.run_path('{REPO / script}', "
+        run += "run_name='__main__')"
+        result = subprocess.run([sys.executable, "-c", WITHOUT_TRAINING + run],
+                                capture_output=True, text=True, timeout=120)  # fmt: skip
+        (line,) = error_lines(result)
+        assert line.startswith(f"{script}: error: ") and "'minitaur-env[train]'" in line
+        assert result.returncode == 1

@@ -13,13 +13,21 @@ class TrainingDiverged(RuntimeError):
     """A loss, an action, an observation or a network weight became NaN or infinite."""
 
 
+def missing_dependency(program: str, error: ModuleNotFoundError) -> str:
+    """The one line a script prints when the ``train`` extra is not installed."""
+    return (
+        f"{program}: error: {error.name} is not installed; training and evaluation need "
+        "the train extra: pip install torch==2.13.0 'minitaur-env[train]'"
+    )
+
+
 _API = {
     "Experiment": "minitaur_env.training.experiment",
     "ExperimentConfig": "minitaur_env.training.experiment",
     "RunResult": "minitaur_env.training.experiment",
     "RunFolder": "minitaur_env.training.run_folder",
 }
-__all__ = ["TrainingDiverged", "UsageError", *_API]
+__all__ = ["TrainingDiverged", "UsageError", "missing_dependency", *_API]
 
 
 def __getattr__(name: str):
