@@ -8,19 +8,32 @@ selected, and only then played on the report seeds. Per run, the best and final 
 are also reported on the report seeds: the learning target's figure.
 
     python benchmarks/select_policy.py logs/screen/sac/MinitaurBulletEnv-v0_{3,4,5} \\
-        --from-steps 200000 --json benchmarks/results/sac-selection.json
+        --from-steps 200000 --json benchmarks/results/sac-selection.json \\
+        --ship pretrained/sac/MinitaurBulletEnv-v0_1
+
+``--ship`` writes the chosen model as a zoo-style run folder with its provenance.yml,
+the run's config, evaluations and learning curve (then make its Hub folder with
+``python -m minitaur_env.package``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
+import yaml
 
+from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.envs import make_env
-from minitaur_env.training.evaluation import load_policy, run_episodes, summarize
+from minitaur_env.training.evaluation import (
+    load_policy,
+    normalizer_path_for,
+    run_episodes,
+    summarize,
+)
 from minitaur_env.training.run_folder import RunFolder
 
 
@@ -53,6 +66,7 @@ def main() -> None:
     parser.add_argument("--select-seed", type=int, default=5000)
     parser.add_argument("--report-seed", type=int, default=12345)
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--ship", type=Path, help="write the chosen model here (a zoo run folder)")
     args = parser.parse_args()
 
     report: dict = {"select_seed": args.select_seed, "report_seed": args.report_seed,
@@ -77,14 +91,77 @@ def main() -> None:
                                                      report["selection"][m]["mean"]))  # fmt: skip
     reported = judge(Path(chosen), args.episodes, args.report_seed)
     report["chosen"] = {"model": chosen, "report": reported}
-    print(f"chosen: {chosen}: {reported['mean']:.2f} ± {reported['std']:.2f}, "
-          f"{reported['falls']} falls, {reported['speed']:.2f} m/s on the report seeds")
+    print(
+        f"chosen: {chosen}: {reported['mean']:.2f} ± {reported['std']:.2f}, "
+        f"{reported['falls']} falls, {reported['speed']:.2f} m/s on the report seeds"
+    )
     finals = [r["final"]["mean"] for r in report["runs"].values() if "final" in r]
     bests = [r["best"]["mean"] for r in report["runs"].values() if "best" in r]
     print(f"median over {len(bests)} runs: best model {np.median(bests):.2f}, "
           f"final model {np.median(finals):.2f} (report seeds)")  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
+    if args.ship:
+        ship(Path(chosen), reported, report["selection"][chosen], args)
+
+
+def run_of(model: Path) -> RunFolder:
+    return RunFolder(model.parents[1] if model.parent.name == "checkpoints" else model.parent)
+
+
+def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) -> None:
+    run, shipped = run_of(model), RunFolder(args.ship)
+    shipped.path.mkdir(parents=True, exist_ok=True)
+    config = run.read_config()
+    shipped.write_config(config)  # also the zoo's <env>/ files
+    shutil.copyfile(model, shipped.zoo_model)
+    stats = normalizer_path_for(model)
+    if stats is not None:
+        shutil.copyfile(stats, shipped.zoo_vecnormalize)
+    shutil.copyfile(run.evaluations, shipped.evaluations)
+    shutil.copyfile(run.learning_curve, shipped.learning_curve)
+    steps = int(saved_steps(model))
+    curve = RunCurve.read(run)
+    minutes = float(np.interp(steps, curve.steps, curve.seconds)) / 60
+    provenance = {
+        "algo": config["algo"], "backend": config["backend"], "env": config["env"],
+        "env_kwargs": config["env_kwargs"],
+        "eval_mean_return": round(reported["mean"], 3),
+        "eval_std_return": round(reported["std"], 3),
+        "eval_episodes": args.episodes,
+        "eval_seeds": f"{args.report_seed}..{args.report_seed + args.episodes - 1}",
+        "eval_deterministic": True,
+        "eval_falls": reported["falls"],
+        "eval_mean_speed_m_per_s": round(reported["speed"], 3),
+        "eval_command": f"python evaluate.py --model {shipped.zoo_model} "
+                        f"--episodes {args.episodes}",
+        "selection": {
+            "rule": "most episodes without a fall, then the highest mean, among the "
+                    "candidates of benchmarks/select_policy.py",
+            "seeds": f"{args.select_seed}..{args.select_seed + args.episodes - 1}",
+            "mean_return": round(selected["mean"], 3), "falls": selected["falls"],
+        },
+        "training": {
+            "commands": run.command.read_text().strip().splitlines(),
+            "seed": config["seed"],
+            "model": f"{model.relative_to(run.path)} of {run.path.name}",
+            "model_steps": steps,
+            "trained_steps": int(curve.steps[-1]) if len(curve.steps) else None,
+            "wall_clock_min_to_model": round(minutes, 1),
+            "wall_clock_note": "training time on the 2-core CPU machine, shared with other "
+                               "training runs (see the README)",
+        },
+    }  # fmt: skip
+    shipped.provenance.write_text(yaml.safe_dump(provenance, sort_keys=False, width=100))
+    print(f"shipped: {shipped.zoo_model}")
+
+
+def saved_steps(model: Path) -> int:
+    """The env steps a model zip was saved at (SB3's num_timesteps in its data)."""
+    import zipfile
+
+    with zipfile.ZipFile(model) as archive:
+        return int(json.loads(archive.read("data"))["num_timesteps"])
 
 
 if __name__ == "__main__":
