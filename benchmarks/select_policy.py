@@ -146,7 +146,7 @@ def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) 
             "seed": config["seed"],
             "model": f"{model.relative_to(run.path)} of {run.path.name}",
             "model_steps": steps,
-            "trained_steps": int(curve.steps[-1]) if len(curve.steps) else None,
+            "trained_steps": max((steps for steps, _ in run.checkpoints()), default=steps),
             "wall_clock_min_to_model": round(minutes, 1),
             "wall_clock_note": "training time on the 2-core CPU machine, shared with other "
                                "training runs (see the README)",
