@@ -34,9 +34,13 @@ def base(n_timesteps: int = 400) -> ExperimentConfig:
     )  # fmt: skip
 
 
-def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path):
+def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path, capsys):
     sweep = Sweep(base(), storage=str(tmp_path), name="seeds", seeds=[0, 1])
     assert sweep.run() == []
+    shown = [line for line in capsys.readouterr().out.splitlines() if "  eval " in line]
+    for seed in (0, 1):  # one line per evaluation of each trial, as train.py prints
+        steps = [line.split("  ")[1] for line in shown if f"(seed {seed})" in line]
+        assert steps == ["step 200/400", "step 400/400"]
     rows = summarize(sweep.folder)
     assert len(rows) == 1 and rows[0]["config"] == "default"
     row = rows[0]

@@ -129,6 +129,25 @@ def _tune_reporter() -> Any:
     return ReportToTune()
 
 
+def _evaluation_lines(total_steps: int) -> Any:
+    """A Tune callback printing one line per trial evaluation, as train.py does off a tty."""
+    from ray import tune
+
+    from minitaur_env.training.progress import format_duration
+
+    class EvaluationLines(tune.Callback):
+        def on_trial_result(self, iteration, trials, trial, result, **info) -> None:
+            seed = trial.config.get("seed")
+            print(
+                f"trial {trial.trial_id}{'' if seed is None else f' (seed {seed})'}  "
+                f"step {result['timesteps']:,}/{total_steps:,}  eval {result[METRIC]:.2f}  "
+                f"elapsed {format_duration(result.get('time_total_s', 0.0))}",
+                flush=True,
+            )
+
+    return EvaluationLines()
+
+
 def run_trial(trial: dict[str, Any]) -> None:
     """Ray Tune's function trainable: one configuration, one seed, one run folder."""
     from ray import tune
@@ -272,6 +291,7 @@ class Sweep:
                 storage_path=str(Path(self.storage).resolve()),
                 failure_config=tune.FailureConfig(max_failures=0),
                 verbose=0,
+                callbacks=[_evaluation_lines(self.base.n_timesteps)],
             ),
         )
 
