@@ -106,17 +106,19 @@ def test_resume_extends_a_run_to_n_steps_and_keeps_its_checkpoints_aligned(tmp_p
 
 
 def test_resume_forgets_what_the_killed_session_logged_after_its_checkpoint(tmp_path):
-    # A kill after step 250 whose newest readable checkpoint is 200: the episodes and
-    # evaluations of steps 201-250 belong to a branch the resume does not continue.
-    run = pendulum(tmp_path, env="ShortPendulum-v0", n_timesteps=250, save_freq=100,
+    # A kill after step 260 whose newest readable checkpoint is 220: the episodes and
+    # evaluations of steps 221-260 belong to a branch the resume does not continue.
+    run = pendulum(tmp_path, env="ShortPendulum-v0", n_timesteps=260, save_freq=110,
                    eval_freq=50, eval_episodes=1).run().run  # fmt: skip
-    run.checkpoint(250).unlink()
-    result = Experiment.resume(run.path, n_timesteps=300, verbose=0).run()
+    run.checkpoint(260).unlink()
+    result = Experiment.resume(run.path, n_timesteps=340, verbose=0).run()
     assert result.status == "completed"
     with np.load(run.evaluations) as data:
+        # On multiples of eval_freq after the resume too (not at 270, 320).
         assert data["timesteps"].tolist() == [50, 100, 150, 200, 250, 300]
     monitor = next(run.monitor_dir.glob("*.monitor.csv")).read_text().splitlines()[2:]
-    assert sum(int(line.split(",")[1]) for line in monitor) == 300  # 350 if kept
+    # 8 episodes of 25 steps before the checkpoint, 4 after: 350 if the lost ones were kept.
+    assert sum(int(line.split(",")[1]) for line in monitor) == 300
 
 
 def test_wall_clock_continues_across_resumed_sessions(tmp_path):

@@ -456,6 +456,10 @@ class Experiment:
                     evaluation.evaluations_length = [list(r) for r in data["ep_lengths"]]
                 means = [np.mean(r) for r in evaluation.evaluations_results]
                 evaluation.best_mean_reward = float(max(means)) if means else -np.inf
+            if self.resuming:
+                # EvalCallback counts its calls from 0; continue the run's count so that
+                # evaluations stay on multiples of eval_freq, as before the stop.
+                evaluation.n_calls = (self.resumed_at or 0) // config.n_envs
             callbacks.append(evaluation)
         if config.video_freq:
             callbacks.append(
