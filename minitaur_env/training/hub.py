@@ -27,9 +27,6 @@ from minitaur_env.training.evaluation import (
 )
 from minitaur_env.training.run_folder import HUB_VECNORMALIZE, RunFolder, zoo_hyperparams
 
-ALGO_CLASS_NAMES = {"sac": "SAC", "tqc": "TQC", "ppo": "PPO", "a2c": "A2C", "td3": "TD3",
-                    "ddpg": "DDPG", "crossq": "CrossQ", "dqn": "DQN"}  # fmt: skip
-
 
 def model_of(run_or_model: Path) -> Path:
     """A model zip as given, or a run folder's best model (its final one if it has none)."""
@@ -121,7 +118,7 @@ def _model_card(
     from huggingface_hub import ModelCard, ModelCardData
     from huggingface_hub.repocard import metadata_eval_result
 
-    algo_class = ALGO_CLASS_NAMES.get(policy.algo, policy.algo.upper())
+    algo_class = type(policy.model).__name__
     mean, std = results["mean_reward"], results["std_reward"]
     metadata = metadata_eval_result(
         model_pretty_name=algo_class,
@@ -145,7 +142,7 @@ def _model_card(
         ],
         **metadata,
     )
-    module = {"tqc": "sb3_contrib"}.get(policy.algo, "stable_baselines3")
+    module = type(policy.model).__module__.split(".")[0]  # stable_baselines3, sb3_contrib, sbx
     name = folder.name
     if policy.normalizer is not None:
         normalization = (
