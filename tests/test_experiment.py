@@ -232,8 +232,17 @@ def test_run_folder_names_every_file_in_one_place(tmp_path):
     assert run.vecnormalize(5).name == "rl_model_vecnormalize_5_steps.pkl"
     assert run.vecnormalize_beside(run.best_model).name == "best_model_vecnormalize.pkl"
     assert RunFolder.create(tmp_path, "sac", "MinitaurBulletEnv-v0").number == 2
-    run.write_config({"algo": "sac"})
-    assert yaml.safe_load(run.config.read_text()) == {"algo": "sac"}
+    config = ExperimentConfig.resolve(
+        "sac", "MinitaurBulletEnv-v0", seed=3, env_kwargs={"max_episode_steps": 40}
+    ).to_dict()
+    run.write_config(config)
+    assert yaml.safe_load(run.config.read_text()) == config
+    # The same settings where rl-baselines3-zoo looks for them, beside <env>.zip.
+    assert run.final_model == run.path / "MinitaurBulletEnv-v0.zip"
+    zoo = yaml.safe_load((run.zoo_dir / "config.yml").read_text())
+    assert zoo["normalize"] is True and zoo["n_steps"] == 5 and zoo["policy"] == "MlpPolicy"
+    zoo_args = yaml.safe_load((run.zoo_dir / "args.yml").read_text())
+    assert zoo_args["seed"] == 3 and zoo_args["env_kwargs"] == {"max_episode_steps": 40}
     with pytest.raises(UsageError, match=r"no config\.yml"):
         RunFolder.existing(tmp_path / "sac" / "MinitaurBulletEnv-v0_2")
 
