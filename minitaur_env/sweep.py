@@ -55,12 +55,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+SWEEP_MODULES = ("ray", "optuna", "rliable", "arch", "pandas")  # the ray extra
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    from minitaur_env.training.sweeps import run_sweep_from_args
-
     try:
+        from minitaur_env.training.sweeps import run_sweep_from_args
+
         return run_sweep_from_args(args)
+    except ModuleNotFoundError as error:
+        if error.name not in SWEEP_MODULES:
+            raise
+        print(
+            f"sweep: error: {error.name} is not installed; sweeps need the ray extra: "
+            "pip install 'minitaur-env[ray]'",
+            file=sys.stderr,
+        )
+        return 2
     except UsageError as error:
         print(f"sweep: error: {error}", file=sys.stderr)
         return 2

@@ -18,7 +18,7 @@ pytest.importorskip("rliable")
 from minitaur_env.training import ExperimentConfig, UsageError
 from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.sweeps import Sweep, load_search_space, summarize
-from tests.scripts import REPO
+from tests.scripts import REPO, error_lines
 
 TINY_SAC = {"learning_starts": 100, "batch_size": 32, "policy_kwargs": {"net_arch": [32]}}
 SWEEP_ARGS = [
@@ -125,3 +125,15 @@ def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
     rows = summarize(tmp_path / "cut")
     assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 3000
     assert list(tmp_path.glob("cut/runs/*/sac/*/progress-resumed-at-*.csv"))  # not restarted
+
+
+def test_without_the_ray_extra_the_sweep_says_so_in_one_line():
+    hide_ray = "import sys\nsys.modules['ray'] = None\nsys.argv = ['sweep', '--seeds', '1']\n"
+    run = hide_ray + "import runpy\nrunpy.run_module('minitaur_env.sweep', run_name='__main__')"
+    result = subprocess.run([sys.executable, "-c", run], capture_output=True, text=True,
+                            timeout=120)  # fmt: skip
+    assert result.returncode == 2
+    assert error_lines(result) == [
+        "sweep: error: ray is not installed; sweeps need the ray extra: "
+        "pip install 'minitaur-env[ray]'"
+    ]
