@@ -70,17 +70,7 @@ def wall_clock_at(run: RunFolder, steps: np.ndarray) -> np.ndarray:
     session is counted from where the previous one's last logged episode ended: time
     spent stopped between sessions is not counted.
     """
-    events = []
-    for monitor in sorted(run.monitor_dir.glob("*.monitor.csv")):
-        with monitor.open() as handle:
-            next(handle)  # the JSON header line
-            offset, previous = 0.0, 0.0
-            for row in csv.DictReader(handle):
-                time = float(row["t"])
-                if time < previous:
-                    offset += previous
-                previous = time
-                events.append((offset + time, int(row["l"])))
+    events = [(episode.training_time, episode.length) for episode in run.monitor_episodes()]
     if not events:
         return np.full(len(steps), np.nan)
     events.sort()

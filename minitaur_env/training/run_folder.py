@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import pickle
 import re
 import tempfile
@@ -32,6 +33,16 @@ def ensure_writable(folder: Path) -> None:
             pass
     except OSError as error:
         raise UsageError(f"cannot write to {folder}: {error.strerror or error}") from error
+
+
+@dataclasses.dataclass
+class MonitorEpisode:
+    monitor: Path
+    line: int  # index in the file
+    session: int  # 0, then one more after each resume
+    time: float  # the Monitor's clock, restarted by each session
+    training_time: float  # seconds of training, across sessions
+    length: int
 
 
 class RunFolder:
@@ -265,29 +276,38 @@ class RunFolder:
             kept = logged["timesteps"] <= steps
             if not kept.all():
                 np.savez(self.evaluations, **{key: value[kept] for key, value in logged.items()})
-        monitors = sorted(self.monitor_dir.glob("*.monitor.csv"))
-        episodes = []  # (session, time, length, monitor, line)
-        contents = {}
-        for monitor in monitors:
-            lines = monitor.read_text().splitlines(keepends=True)
-            contents[monitor] = lines
-            session, previous = 0, -np.inf
-            for index, line in enumerate(lines[2:], start=2):
-                time, length = _monitor_time_and_length(line)
-                if time < previous:  # each resumed session's clock restarts from 0
-                    session += 1
-                previous = time
-                episodes.append((session, time, length, monitor, index))
-        episodes.sort(key=lambda episode: episode[:2])
-        done, dropped = 0, {monitor: set() for monitor in monitors}
-        for _, _, length, monitor, index in episodes:
-            done += length
+        episodes = self.monitor_episodes()
+        episodes.sort(key=lambda episode: (episode.session, episode.time))
+        done, dropped = 0, {}
+        for episode in episodes:
+            done += episode.length
             if done > steps:
-                dropped[monitor].add(index)
-        for monitor, lines in contents.items():
-            if dropped[monitor]:
-                kept_lines = [line for i, line in enumerate(lines) if i not in dropped[monitor]]
-                monitor.write_text("".join(kept_lines))
+                dropped.setdefault(episode.monitor, set()).add(episode.line)
+        for monitor, lines in dropped.items():
+            kept = [text for i, text in enumerate(monitor.read_text().splitlines(True))
+                    if i not in lines]  # fmt: skip
+            monitor.write_text("".join(kept))
+
+    def monitor_episodes(self) -> list[MonitorEpisode]:
+        """Every finished training episode of the monitor files, with its session.
+
+        SB3's Monitor restarts its clock at 0 in each resumed session: a clock that goes
+        back starts a new session, and ``training_time`` continues from where the previous
+        session's last episode ended, so time spent stopped is not counted.
+        """
+        episodes = []
+        for monitor in sorted(self.monitor_dir.glob("*.monitor.csv")):
+            session, offset, previous = 0, 0.0, 0.0
+            lines = monitor.read_text().splitlines()
+            for index, line in enumerate(lines[2:], start=2):  # a JSON header, then r,l,t
+                _reward, length, time = line.split(",")[:3]
+                if float(time) < previous:
+                    session, offset = session + 1, offset + previous
+                previous = float(time)
+                episodes.append(MonitorEpisode(
+                    monitor, index, session, float(time), offset + float(time), int(length)
+                ))  # fmt: skip
+        return episodes
 
     def append_command(self, command: str) -> None:
         with self.command.open("a") as handle:
@@ -307,11 +327,6 @@ def _write_yaml(path: Path, content: dict[str, Any], sort_keys: bool = True) -> 
     temporary = path.with_suffix(".yml.tmp")
     temporary.write_text(yaml.safe_dump(content, sort_keys=sort_keys))
     temporary.replace(path)
-
-
-def _monitor_time_and_length(line: str) -> tuple[float, int]:
-    _reward, length, time = line.strip().split(",")[:3]  # SB3 Monitor's columns: r,l,t
-    return float(time), int(length)
 
 
 def load_pickle(path: Path) -> Any:
