@@ -43,7 +43,7 @@ from minitaur_env.training.envs import (
     qualified_env_id,
     resolve_vec_env,
 )
-from minitaur_env.training.hyperparams import RUN_KEYS, load_hyperparams
+from minitaur_env.training.hyperparams import RUN_KEYS, algorithm_kwargs, load_hyperparams
 from minitaur_env.training.run_folder import RunFolder, load_pickle
 from minitaur_env.training.vec_env import EnvWorkerError
 
@@ -128,6 +128,7 @@ class ExperimentConfig:
         if self.vec_env not in VEC_ENVS:
             raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}")
         algorithm_class(self.algo, self.backend)
+        algorithm_kwargs(self.hyperparams)
         qualified_env_id(self.env)
 
     def to_dict(self) -> dict[str, Any]:
@@ -347,7 +348,7 @@ class Experiment:
                 device=config.device,
                 tensorboard_log=config.tensorboard_log,
                 verbose=0,
-                **config.hyperparams,
+                **algorithm_kwargs(config.hyperparams),
             )
         except (TypeError, ValueError, AssertionError) as error:
             message = " ".join(str(error).split())

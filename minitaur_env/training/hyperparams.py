@@ -13,6 +13,8 @@ from minitaur_env.training import UsageError
 
 # Keys of a hyperparameter entry that configure the run rather than the algorithm.
 RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "policy")
+# Keys that take rl-baselines3-zoo's ``lin_<initial value>`` (linear decay to 0).
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -82,3 +84,29 @@ def _number_if_numeric(value: Any) -> Any:
         except ValueError:
             return value
     return value
+
+
+def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """``hyperparams`` with the zoo's ``lin_0.001`` turned into a schedule SB3 accepts.
+
+    The schedule decays linearly from the value to 0 over training, as the zoo's does;
+    the config files keep the string, so the zoo reads them too.
+    """
+    from stable_baselines3.common.utils import LinearSchedule
+
+    kwargs = dict(hyperparams)
+    for key in SCHEDULE_KEYS:
+        value = kwargs.get(key)
+        if not isinstance(value, str):
+            continue
+        kind, _, number = value.partition("_")
+        try:
+            if kind != "lin":
+                raise ValueError
+            initial = float(number)
+        except ValueError:
+            raise UsageError(
+                f"{key}: expected a number or lin_<number> (linear decay), got {value!r}"
+            ) from None
+        kwargs[key] = LinearSchedule(initial, 0.0, 1.0)
+    return kwargs
