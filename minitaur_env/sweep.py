@@ -9,8 +9,8 @@
 Each trial writes the run folder train.py writes, under ``<-f>/<name>/runs/<trial>/``.
 At the end it prints (and writes to ``<-f>/<name>/summary.csv``) one row per
 configuration: seeds done and failed, final and best eval return per seed, median, IQM
-with its 95 % bootstrap CI, and steps and minutes to 5 and 15; ``curves.png`` shows the
-IQM learning curves. Needs ``pip install 'minitaur-env[ray]'``.
+with its 95 % bootstrap CI, and steps and minutes to 5 and 15 (``--milestones``);
+``curves.png`` shows the IQM learning curves. Needs ``pip install 'minitaur-env[ray]'``.
 """
 
 from __future__ import annotations
@@ -52,6 +52,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="an existing Ray cluster (default: $RAY_ADDRESS, else local)",
     )
     add("--summarize", metavar="SWEEP_DIR", help="only print and write a finished sweep's table")
+    add(
+        "--milestones",
+        nargs="+",
+        type=float,
+        metavar="RETURN",
+        help="returns whose first crossing the table reports in steps and minutes "
+        "(default: 5 15 on the Minitaur ids, else the env's reward threshold)",
+    )
     return parser.parse_args(argv)
 
 

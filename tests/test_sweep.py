@@ -16,6 +16,7 @@ pytest.importorskip("ray")
 pytest.importorskip("rliable")
 
 from minitaur_env.training import ExperimentConfig, UsageError
+from minitaur_env.training.aggregate import default_milestones
 from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.sweeps import Sweep, load_search_space, summarize
 from tests.scripts import REPO, error_lines
@@ -41,7 +42,7 @@ def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path
     for seed in (0, 1):  # one line per evaluation of each trial, as train.py prints
         steps = [line.split("  ")[1] for line in shown if f"(seed {seed})" in line]
         assert steps == ["step 200/400", "step 400/400"]
-    rows = summarize(sweep.folder)
+    rows = summarize(sweep.folder, milestones=(-3000.0, 0.0))
     assert len(rows) == 1 and rows[0]["config"] == "default"
     row = rows[0]
     assert row["seeds_done"] == 2 and row["seeds_failed"] == 0 and row["steps"] == 400
@@ -57,8 +58,27 @@ def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path
     assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"]
     with (sweep.folder / "summary.csv").open() as handle:
         written = list(csv.DictReader(handle))
-    assert {"iqm", "iqm_low", "iqm_high", "median_minutes_to_15"} <= set(written[0])
+    assert {"iqm", "iqm_low", "iqm_high", "median_minutes_to_0"} <= set(written[0])
+    # Pendulum's return is never below -3000 nor above 0.
+    assert row["reached_-3000"] == "2/2" and row["steps_to_-3000_per_seed"] == "200 200"
+    assert row["reached_0"] == "0/2" and row["steps_to_0_per_seed"] == "- -"
+    assert np.isnan(row["median_steps_to_0"])
     assert (sweep.folder / "curves.png").read_bytes().startswith(b"\x89PNG")
+
+
+@pytest.mark.parametrize(
+    ("env_id", "milestones"),
+    [
+        ("MinitaurBulletEnv-v0", (5.0, 15.0)),
+        ("MinitaurBulletDuckEnv-v0", (5.0,)),
+        ("CartPole-v1", (475.0,)),
+        ("Pendulum-v1", ()),  # gymnasium gives it no reward threshold
+    ],
+)
+def test_default_milestones_follow_the_env(env_id, milestones):
+    import minitaur_env  # noqa: F401
+
+    assert default_milestones(env_id) == milestones
 
 
 def test_a_failing_trial_is_one_line_and_the_others_finish(tmp_path):

@@ -79,6 +79,17 @@ def wall_clock_at(run: RunFolder, steps: np.ndarray) -> np.ndarray:
     return np.interp(steps, done, times, right=np.nan)
 
 
+def default_milestones(env_id: str) -> tuple[float, ...]:
+    """5 and the reward threshold for the Minitaur ids; the env's threshold for others."""
+    import gymnasium as gym
+
+    spec = gym.spec(env_id)
+    threshold = spec.reward_threshold
+    if str(spec.entry_point).startswith("minitaur_env"):
+        return tuple(sorted({5.0, float(threshold)}))
+    return () if threshold is None else (float(threshold),)
+
+
 def iqm_with_ci(
     values: Sequence[float], reps: int = 2000, seed: int = 0
 ) -> tuple[float, float, float]:
@@ -139,6 +150,9 @@ class GroupSummary:
             got = [h for h in hits if h is not None]
             label = f"{milestone:g}"
             row[f"reached_{label}"] = f"{len(got)}/{len(hits)}"
+            row[f"steps_to_{label}_per_seed"] = " ".join(
+                "-" if h is None else str(h[0]) for h in hits
+            )
             row[f"median_steps_to_{label}"] = (
                 float(np.median([h[0] for h in got])) if got else np.nan
             )

@@ -21,6 +21,7 @@ import logging
 import math
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -334,13 +335,18 @@ class Sweep:
 
 
 # -- the outcome ------------------------------------------------------------------------
-def summarize(folder: str | Path, milestones: tuple[float, ...] = (5.0, 15.0)) -> list[dict]:
-    """One row per configuration of a sweep folder; writes summary.csv and curves.png."""
+def summarize(folder: str | Path, milestones: Sequence[float] | None = None) -> list[dict]:
+    """One row per configuration of a sweep folder; writes summary.csv and curves.png.
+
+    ``milestones``: the returns whose first crossing the rows report (steps, minutes);
+    by default those of :func:`default_milestones` for the sweep's env.
+    """
     import gymnasium as gym
 
     from minitaur_env.training.aggregate import (
         GroupSummary,
         RunCurve,
+        default_milestones,
         plot_iqm_curves,
         write_csv,
     )
@@ -349,26 +355,31 @@ def summarize(folder: str | Path, milestones: tuple[float, ...] = (5.0, 15.0)) -
     trials = sorted((folder / RUNS).glob(f"*/{TRIAL_FILE}"))
     if not trials:
         raise UsageError(f"{folder} holds no sweep trials ({RUNS}/*/{TRIAL_FILE})")
+    runs_of = {path: [p.parent for p in path.parent.glob("*/*/config.yml")] for path in trials}
+    env_id = next(
+        (yaml.safe_load((runs[0] / "config.yml").read_text())["env"] for runs in runs_of.values()
+         if runs),
+        None,
+    )  # fmt: skip
+    if env_id is not None:
+        import minitaur_env  # noqa: F401  (the Minitaur ids' specs)
+    if milestones is None:
+        milestones = default_milestones(env_id) if env_id is not None else ()
     groups: dict[str, GroupSummary] = {}
-    env_id = None
-    for trial_file in trials:
+    for trial_file, runs in runs_of.items():
         trial = yaml.safe_load(trial_file.read_text())
-        group = groups.setdefault(trial["group"], GroupSummary(trial["group"], [], [], milestones))
-        runs = [p.parent for p in trial_file.parent.glob("*/*/config.yml")]
+        group = groups.setdefault(
+            trial["group"], GroupSummary(trial["group"], [], [], tuple(milestones))
+        )
         if trial["status"] == "completed" and runs:
             group.curves.append(RunCurve.read(runs[0]))
-            env_id = env_id or yaml.safe_load((runs[0] / "config.yml").read_text())["env"]
         elif trial["status"] == "failed":
             group.failed.append(trial.get("error", ""))
         else:  # interrupted: --resume finishes it
             group.unfinished += 1
     rows = [group.row() for group in groups.values()]
     write_csv(rows, folder / "summary.csv")
-    threshold = None
-    if env_id is not None:
-        import minitaur_env  # noqa: F401
-
-        threshold = gym.spec(env_id).reward_threshold
+    threshold = gym.spec(env_id).reward_threshold if env_id is not None else None
     plot_iqm_curves(list(groups.values()), folder / "curves.png", threshold)
     return rows
 
@@ -379,7 +390,7 @@ def run_sweep_from_args(args: Any) -> int:
     from minitaur_env.training.cli import config_from_args
 
     if args.summarize:
-        rows = summarize(args.summarize)
+        rows = summarize(args.summarize, args.milestones)
         print(format_rows(rows))
         print(f"summary: {Path(args.summarize) / 'summary.csv'}")
         return 0
@@ -410,7 +421,7 @@ def run_sweep_from_args(args: Any) -> int:
             file=sys.stderr,
         )
         return 130
-    rows = summarize(sweep.folder)
+    rows = summarize(sweep.folder, args.milestones)
     print(format_rows(rows))
     print(f"summary: {sweep.folder / 'summary.csv'}; curves: {sweep.folder / 'curves.png'}")
     return 1 if failures else 0
