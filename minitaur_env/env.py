@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, SupportsFloat
+from collections.abc import Sequence
+from typing import Any, Literal, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -12,7 +13,7 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from minitaur_env.motor import OBSERVED_TORQUE_LIMIT, SPEED_LIMIT
-from minitaur_env.randomization import DynamicsRanges, apply_dynamics, sample_dynamics
+from minitaur_env.randomization import DynamicsRanges, Pushes, apply_dynamics, sample_dynamics
 from minitaur_env.robot import (
     CLASSIC_OBSERVATION_BOUND,
     DEFAULT_GAINS,
@@ -23,6 +24,15 @@ from minitaur_env.robot import (
     Minitaur,
     MotorControl,
     leg_model_to_motor_angles,
+)
+from minitaur_env.sensors import (
+    ANGLES,
+    BASE_RATES,
+    QUATERNION,
+    VELOCITIES,
+    SensorHistory,
+    euler_to_quaternion,
+    quaternion_to_euler,
 )
 from minitaur_env.sim import DATA_PATH, BulletSim
 
@@ -49,6 +59,16 @@ OBSERVATION_BOUND = np.concatenate(
         np.full(4, 1.01),
     ]
 ).astype(np.float32)
+
+# observation="imu": motor angles, then roll, pitch and their rates from the IMU, as the
+# real robot's SAC policy saw them (Haarnoja et al. 2018). The rates are clipped where a
+# MEMS gyroscope saturates (2000 deg/s).
+GYRO_LIMIT = math.radians(2000.0)  # rad/s
+IMU_OBSERVATION_BOUND = np.concatenate(
+    [np.full(NUM_MOTORS, 2 * math.pi), np.full(2, math.pi), np.full(2, GYRO_LIMIT)]
+).astype(np.float32)
+Observation = Literal["classic", "imu"]
+OBSERVATIONS: tuple[str, ...] = ("classic", "imu")
 
 
 def _require(condition: bool, message: str) -> None:
@@ -87,6 +107,12 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     With ``observation_noise_stdev > 0`` each entry gets ``N(0, stdev)`` times its
     classic bound (pi, 167.7, 5.7, 1) added.
 
+    With ``observation="imu"``, ``Box((12,), float32)``: the motor angles (0-7, rad,
+    +-2 pi), the base's roll and pitch (8-9, rad, +-pi) and its roll and pitch rates in
+    the base frame (10-11, rad/s, clipped at a gyroscope's +-2000 deg/s): what the real
+    robot senses (Haarnoja et al. 2018). ``observation_noise_stdev`` then applies to the
+    motor angles (times pi) and ``imu_noise_stdev`` to the rest.
+
     ## Reward
     Per step, ``reward = reward_forward + reward_energy + reward_drift + reward_shake``:
 
@@ -120,6 +146,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``randomize_dynamics`` (True): re-draw masses, battery voltage, motor
       damping and foot friction at every reset, within ``dynamics_ranges``.
     - ``dynamics_ranges``: a :class:`DynamicsRanges` (classic ranges by default).
+    - ``observation`` ("classic"): "classic" or "imu" (above).
     - ``distance_weight`` (1.0), ``energy_weight`` (0.005), ``drift_weight`` (0.0),
       ``shake_weight`` (0.0): reward weights; the last three must be >= 0.
     - ``distance_limit`` (inf): terminate beyond this xy distance (m).
@@ -128,7 +155,28 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
       position control, "pd" ideal PD torques, or "position" PyBullet servos.
     - ``motor_kp``, ``motor_kd`` (None: 1.0/0.02, 8.0/0.3 or 1.0/1.0 by mode).
     - ``motor_overheat_protection`` (True), ``motor_velocity_limit`` (inf rad/s).
-    - ``action_repeat`` (1): control steps of 0.01 s each action is held for.
+    - ``action_repeat`` (1): control steps each action is held for.
+
+    Sim-to-real (all off by default; Tan et al. 2018):
+
+    - ``control_time_step`` (0.01 s): the control step, a multiple of the 2 ms physics
+      step (with "position" control, the physics step itself). The return sums per-step
+      rewards, so it grows with the time an episode of 1000 steps lasts.
+    - ``control_latency`` (0 s): observations are this old, interpolated between the
+      physics steps' sensor readings as the classic reactive env did.
+    - ``pd_latency`` (0 s): the motors' PD loop sees angles and velocities this old (the
+      motor's back-EMF still uses the true velocity); needs a motor model.
+    - ``imu_noise_stdev`` (0 rad): Gaussian noise on the IMU's roll, pitch and yaw (and
+      rates); ``imu_bias`` (0 rad, a number or one per axis) is added to the angles. In
+      the classic observation they reach the quaternion through the Euler angles.
+    - ``pushes`` (None): ``True`` for Tan et al.'s pushes (130-220 N, horizontal, in a
+      random direction, for 0.06 s every 1.2 s), or a :class:`Pushes` / mapping of its
+      fields; the force of the step is ``info["push_force"]``.
+    - ``dynamics_ranges`` also takes ``"tan2018"`` (:meth:`DynamicsRanges.tan2018`:
+      inertia, motor strength, joint friction, control step, latency and IMU errors too)
+      or a mapping of :class:`DynamicsRanges` fields, so ``--env-kwargs`` can state it.
+      A drawn control step, latency or IMU error replaces the fixed one for the episode
+      and is reported in ``reset``'s ``info["dynamics"]``.
     - ``self_collision`` (True), ``on_rack`` (False: True holds the base in the air).
     - ``hard_reset`` (True): rebuild the world at every reset (about 40 ms), as
       the classic env does. False builds it once and restores a saved state
@@ -141,6 +189,10 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
       ``camera_yaw`` (0 deg), ``camera_pitch`` (-30 deg): the rgb_array camera.
     - ``urdf_root``: folder with ``plane.urdf`` and ``quadruped/minitaur.urdf``
       (``pybullet_data`` by default).
+
+    ``MinitaurBulletRandomized-v0`` is this env with ``dynamics_ranges="tan2018"`` and
+    ``pd_latency=0.003``: same reward, threshold and time limit (1000 steps, which last
+    4-20 s as the control step is drawn).
 
     ## Version history
     - v0: gymnasium port of pybullet_envs' MinitaurBulletEnv-v0 (pybullet 3.2.7):
@@ -155,7 +207,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: str | None = None,
         *,
         randomize_dynamics: bool = True,
-        dynamics_ranges: DynamicsRanges | None = None,
+        dynamics_ranges: DynamicsRanges | dict[str, Any] | str | None = None,
         distance_weight: float = 1.0,
         energy_weight: float = 0.005,
         drift_weight: float = 0.0,
@@ -168,6 +220,13 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         motor_overheat_protection: bool = True,
         motor_velocity_limit: float = math.inf,
         action_repeat: int = 1,
+        control_time_step: float = CONTROL_TIME_STEP,
+        control_latency: float = 0.0,
+        pd_latency: float = 0.0,
+        imu_noise_stdev: float = 0.0,
+        imu_bias: float | Sequence[float] = 0.0,
+        pushes: Pushes | dict[str, Any] | bool | None = None,
+        observation: Observation = "classic",
         self_collision: bool = True,
         on_rack: bool = False,
         hard_reset: bool = True,
@@ -213,6 +272,41 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"{name} must be an int in 1..4096, got {size!r}",
             )
         _require(camera_distance > 0, f"camera_distance must be > 0, got {camera_distance}")
+        _require(
+            observation in OBSERVATIONS,
+            f"observation must be one of {OBSERVATIONS}, got {observation!r}",
+        )
+        for name, value in (
+            ("control_latency", control_latency),
+            ("pd_latency", pd_latency),
+            ("imu_noise_stdev", imu_noise_stdev),
+        ):
+            _require(
+                math.isfinite(value) and value >= 0, f"{name} must be finite and >= 0, got {value}"
+            )
+        bias = np.broadcast_to(np.asarray(imu_bias, dtype=float), (3,)).copy()
+        _require(bool(np.all(np.isfinite(bias))), f"imu_bias must be finite, got {imu_bias}")
+        ranges = DynamicsRanges.coerce(dynamics_ranges)
+        self.pushes = Pushes.coerce(pushes)
+        # A motor model needs small physics steps to stay stable; PyBullet's own
+        # position servos run one physics step per control step.
+        if motor_control == "position":
+            self.physics_time_step = control_time_step
+            _require(
+                pd_latency == 0 and ranges.control_step is None,
+                "pd_latency and a randomized control_step need a motor model "
+                "(motor_control 'accurate' or 'pd')",
+            )
+        else:
+            self.physics_time_step = CONTROL_TIME_STEP / SUBSTEPS
+        substeps = round(control_time_step / self.physics_time_step)
+        _require(
+            control_time_step > 0
+            and substeps >= 1
+            and abs(substeps * self.physics_time_step - control_time_step) < 1e-9,
+            f"control_time_step must be a positive multiple of the {self.physics_time_step} s "
+            f"physics step, got {control_time_step}",
+        )
         default_kp, default_kd = DEFAULT_GAINS[motor_control]
         self._kp = default_kp if motor_kp is None else motor_kp
         self._kd = default_kd if motor_kd is None else motor_kd
@@ -220,7 +314,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
 
         self.render_mode = render_mode
         self.randomize_dynamics = randomize_dynamics
-        self.dynamics_ranges = dynamics_ranges or DynamicsRanges()
+        self.dynamics_ranges = ranges
         self.distance_weight = distance_weight
         self.energy_weight = energy_weight
         self.drift_weight = drift_weight
@@ -231,6 +325,12 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self.motor_overheat_protection = motor_overheat_protection
         self.motor_velocity_limit = motor_velocity_limit
         self.action_repeat = action_repeat
+        self.control_time_step = control_time_step
+        self.control_latency = control_latency
+        self.pd_latency = pd_latency
+        self.imu_noise_stdev = imu_noise_stdev
+        self.imu_bias = bias
+        self.observation = observation
         self.self_collision = self_collision
         self.on_rack = on_rack
         self.hard_reset = hard_reset
@@ -241,17 +341,27 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self.camera_pitch = camera_pitch
         self.urdf_root = urdf_root
 
-        # A motor model needs small physics steps to stay stable; PyBullet's own
-        # position servos run one physics step per control step.
-        substeps = 1 if motor_control == "position" else SUBSTEPS
-        self.physics_time_step = CONTROL_TIME_STEP / substeps
-        self._solver_iterations = SOLVER_ITERATIONS // substeps
-        self._physics_steps_per_action = substeps * action_repeat
-        self.dt = CONTROL_TIME_STEP * action_repeat
+        # The classic solver budget: 300 iterations per 10 ms, whatever the control step.
+        self._solver_iterations = round(
+            SOLVER_ITERATIONS * self.physics_time_step / CONTROL_TIME_STEP
+        )
+        self._set_control_step(substeps)
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}
 
         self.action_space = spaces.Box(-1.0, 1.0, (NUM_MOTORS,), np.float32)
-        self.observation_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, dtype=np.float32)
+        bound = OBSERVATION_BOUND if observation == "classic" else IMU_OBSERVATION_BOUND
+        self.observation_space = spaces.Box(-bound, bound, dtype=np.float32)
+
+        # Delays need the readings of past physics steps; without them none are kept.
+        max_delay = max(control_latency, pd_latency)
+        if randomize_dynamics and ranges.control_latency is not None:
+            max_delay = max(max_delay, ranges.control_latency[1])
+        self._history = SensorHistory(self.physics_time_step, max_delay) if max_delay > 0 else None
+        self._episode_control_latency = control_latency
+        self._episode_imu_noise = imu_noise_stdev
+        self._episode_imu_bias = bias
+        self._physics_step_count = 0
+        self._push_force = np.zeros(3)
 
         self._sim: BulletSim | None = BulletSim(gui=render_mode == "human")
         self._robot: Minitaur | None = None
@@ -260,6 +370,13 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._last_base_position = np.zeros(3)
         self._previous_x = 0.0
         self._last_frame_time = 0.0
+
+    def _set_control_step(self, substeps: int) -> None:
+        self._physics_steps_per_action = substeps * self.action_repeat
+        control_step = self.physics_time_step * substeps
+        if abs(control_step - self.control_time_step) < 1e-12:
+            control_step = self.control_time_step  # exactly the classic 0.01 by default
+        self.dt = control_step * self.action_repeat
 
     # -- scene -------------------------------------------------------------------
     def _build_scene(self, sim: BulletSim) -> None:
@@ -321,9 +438,11 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         robot.reset_motor_state()
 
         info: dict[str, Any] = {}
+        self._draw_episode_settings(None)
         if self.randomize_dynamics:
             dynamics = sample_dynamics(robot, self.dynamics_ranges, self.np_random)
             apply_dynamics(robot, dynamics)
+            self._draw_episode_settings(dynamics)
             info["dynamics"] = dynamics
             self._settle(robot)
         elif self.hard_reset:
@@ -347,8 +466,30 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         # The classic reward measures the first step's displacement from the origin.
         self._last_base_position = np.zeros(3)
         self._previous_x = position[0]
+        self._physics_step_count = 0
+        self._push_force = np.zeros(3)
         info["base_position"] = np.array(position)
-        return self._observation(robot.observation()), info
+        if self._history is not None:
+            self._history.clear()
+            self._history.append(robot.sensor_reading())
+        return self._observation(self._sensed(robot)), info
+
+    def _draw_episode_settings(self, dynamics: Any) -> None:
+        """This episode's control step, latency and IMU errors: drawn, else the fixed ones."""
+        substeps = round(self.control_time_step / self.physics_time_step)
+        latency, noise, bias = self.control_latency, self.imu_noise_stdev, self.imu_bias
+        if dynamics is not None:
+            if dynamics.control_step is not None:
+                substeps = max(1, round(dynamics.control_step / self.physics_time_step))
+            if dynamics.control_latency is not None:
+                latency = dynamics.control_latency
+            if dynamics.imu_noise_stdev is not None:
+                noise = dynamics.imu_noise_stdev
+            if dynamics.imu_bias is not None:
+                bias = np.array(dynamics.imu_bias)
+        self._set_control_step(substeps)
+        self._episode_control_latency = latency
+        self._episode_imu_noise, self._episode_imu_bias = noise, bias
 
     def _settle(self, robot: Minitaur) -> None:
         sim = self._live_sim()
@@ -365,19 +506,53 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         if robot is None or self._sim is None:
             raise ResetNeeded("call reset() before step()")
         targets = leg_model_to_motor_angles(self._checked_action(action))
-        sim = self._sim
+        sim, history = self._sim, self._history
         for _ in range(self._physics_steps_per_action):
-            robot.apply_motor_targets(targets)
+            pd_state = None
+            if self.pd_latency > 0 and history is not None:
+                late = history.delayed(self.pd_latency)
+                pd_state = (late[ANGLES], late[VELOCITIES])
+            robot.apply_motor_targets(targets, pd_state)
+            if self.pushes is not None:
+                self._push(sim, robot)
             sim.step()
+            self._physics_step_count += 1
+            if history is not None:
+                history.append(robot.sensor_reading())
 
         position, orientation = robot.base_pose()
         state = robot.observation()
         reward, info = self._reward(np.array(position), state)
         terminated = self._is_terminated(position, orientation)
         info["motors_enabled"] = robot.motors_enabled.copy()
+        if self.pushes is not None:
+            info["push_force"] = self._push_force.copy()
         if self.render_mode == "human":
             self._show_in_gui(position)
-        return self._observation(state), reward, terminated, False, info
+        sensed = state if history is None and self.observation == "classic" else None
+        return self._observation(self._sensed(robot, sensed)), reward, terminated, False, info
+
+    def _push(self, sim: BulletSim, robot: Minitaur) -> None:
+        """Tan et al.'s pushes: a new random force every interval, held for the duration."""
+        pushes = self.pushes
+        assert pushes is not None
+        interval = max(1, round(pushes.interval / self.physics_time_step))
+        duration = max(1, round(pushes.duration / self.physics_time_step))
+        step = self._physics_step_count
+        if step >= interval and step % interval == 0:
+            self._push_force = pushes.draw(self.np_random)
+        elif step < interval or step % interval >= duration:
+            self._push_force = np.zeros(3)
+        if self._push_force.any():
+            sim.apply_base_force(robot.body, self._push_force)
+
+    def _sensed(self, robot: Minitaur, state: np.ndarray | None = None) -> np.ndarray:
+        """The reading the controller gets now: ``control_latency`` old when there is one."""
+        if self._history is not None:
+            return self._history.delayed(self._episode_control_latency)
+        if state is not None:
+            return state
+        return robot.sensor_reading() if self.observation == "imu" else robot.observation()
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:
@@ -425,13 +600,39 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             )
         return action
 
-    def _observation(self, state: np.ndarray) -> np.ndarray:
+    def _observation(self, reading: np.ndarray) -> np.ndarray:
+        """The observation from a sensor reading: IMU errors, then the relative noise."""
+        imu_errors = self._episode_imu_noise > 0 or self._episode_imu_bias.any()
+        if self.observation == "imu":
+            angles = reading[ANGLES]
+            if self.observation_noise_stdev > 0:
+                angles = angles + self.np_random.normal(
+                    scale=self.observation_noise_stdev * math.pi, size=NUM_MOTORS
+                )
+            euler = quaternion_to_euler(reading[QUATERNION])
+            rates = reading[BASE_RATES]
+            if imu_errors:
+                euler, rates = self._imu_errors(euler, rates)
+            rates = np.clip(rates, -GYRO_LIMIT, GYRO_LIMIT)
+            return np.concatenate([angles, euler[:2], rates[:2]]).astype(np.float32)
+        state = reading[:OBSERVATION_SIZE]
+        if imu_errors:
+            euler, _ = self._imu_errors(quaternion_to_euler(state[QUATERNION]), np.zeros(3))
+            state = np.concatenate([state[: 3 * NUM_MOTORS], euler_to_quaternion(euler)])
         if self.observation_noise_stdev > 0:
             state = state + (
                 self.np_random.normal(scale=self.observation_noise_stdev, size=OBSERVATION_SIZE)
                 * CLASSIC_OBSERVATION_BOUND
             )
         return state.astype(np.float32)
+
+    def _imu_errors(self, euler: np.ndarray, rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Angles with the episode's bias and Gaussian noise (rad); rates with the noise."""
+        noise = self._episode_imu_noise
+        if noise > 0:
+            euler = euler + self.np_random.normal(scale=noise, size=3)
+            rates = rates + self.np_random.normal(scale=noise, size=3)
+        return euler + self._episode_imu_bias, rates
 
     def _reward(self, position: np.ndarray, state: np.ndarray) -> tuple[float, dict[str, Any]]:
         displacement = position - self._last_base_position

@@ -43,9 +43,19 @@ class MotorModel:
         self.viscous_damping = viscous_damping
 
     def torques(
-        self, targets: np.ndarray, angles: np.ndarray, velocities: np.ndarray
+        self,
+        targets: np.ndarray,
+        angles: np.ndarray,
+        velocities: np.ndarray,
+        true_velocities: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(actual torque applied to the joints, torque the sensor observes)."""
+        """(actual torque applied to the joints, torque the sensor observes).
+
+        ``angles`` and ``velocities`` are what the PD loop sees (late under PD latency);
+        the back-EMF and damping use ``true_velocities`` (by default ``velocities``).
+        """
+        if true_velocities is None:
+            true_velocities = velocities
         # np.minimum/np.maximum: the same values as np.clip at a fraction of its cost on
         # eight entries, and this runs five times per env step.
         pwm = -self.kp * (angles - targets) - self.kd * velocities
@@ -56,7 +66,7 @@ class MotorModel:
         )
         net_voltage = np.minimum(
             np.maximum(
-                pwm * self.voltage - (TORQUE_CONSTANT + self.viscous_damping) * velocities,
+                pwm * self.voltage - (TORQUE_CONSTANT + self.viscous_damping) * true_velocities,
                 -VOLTAGE_CLIPPING,
             ),
             VOLTAGE_CLIPPING,

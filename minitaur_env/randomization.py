@@ -1,45 +1,120 @@
-"""Per-episode dynamics randomization, drawn from the env's own seeded generator."""
+"""Per-episode dynamics randomization and pushes, drawn from the env's own seeded generator."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from typing import Any
 
 import numpy as np
 
-from minitaur_env.robot import Minitaur
+from minitaur_env.robot import NUM_MOTORS, Minitaur
+
+Range = tuple[float, float]
 
 
 @dataclasses.dataclass(frozen=True)
 class DynamicsRanges:
-    """Uniform ranges of the physical parameters re-drawn at every reset.
+    """Uniform ranges of the parameters re-drawn at every reset.
 
-    The defaults are the classic ``MinitaurEnvRandomizer``'s.
+    The defaults are the classic ``MinitaurEnvRandomizer``'s; the fields that default to
+    ``None`` are not randomized (the env's fixed value holds), so the classic draws and
+    their order are unchanged. :meth:`tan2018` gives Tan et al. 2018's Table I.
     """
 
-    base_mass_scale: tuple[float, float] = (0.8, 1.2)
+    base_mass_scale: Range = (0.8, 1.2)
     """Factor on the URDF mass of the base."""
-    leg_mass_scale: tuple[float, float] = (0.8, 1.2)
+    leg_mass_scale: Range = (0.8, 1.2)
     """Factor on the URDF masses of the leg links and, drawn separately, of the motors."""
-    battery_voltage: tuple[float, float] = (14.8, 16.8)
+    battery_voltage: Range = (14.8, 16.8)
     """Battery voltage feeding the motor model (V)."""
-    motor_viscous_damping: tuple[float, float] = (0.0, 0.01)
-    """Motor viscous damping (N m s / rad)."""
-    foot_friction: tuple[float, float] = (0.8, 1.5)
-    """Lateral friction coefficient of the feet."""
+    motor_viscous_damping: Range = (0.0, 0.01)
+    """Motor viscous damping, the paper's "motor friction" (N m s / rad)."""
+    foot_friction: Range = (0.8, 1.5)
+    """Lateral friction coefficient of the feet (contact friction)."""
+    inertia_scale: Range | None = None
+    """Factor on the URDF inertias of the base and, drawn separately, of the legs."""
+    motor_strength: Range | None = None
+    """Factor on each motor's output torque, one draw per motor."""
+    joint_friction: Range | None = None
+    """Coulomb friction torque of each knee joint (N m), one draw per knee."""
+    control_step: Range | None = None
+    """Control step (s); snapped to a whole number of physics steps (2 ms), at least one."""
+    control_latency: Range | None = None
+    """Delay of the observations (s); replaces the env's ``control_latency``."""
+    imu_noise_stdev: Range | None = None
+    """Standard deviation of the IMU noise (rad, rad/s); replaces ``imu_noise_stdev``."""
+    imu_bias: Range | None = None
+    """Bias of each IMU angle (rad), drawn per axis; replaces ``imu_bias``."""
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
-            low, high = getattr(self, field.name)
-            if not (np.isfinite(low) and np.isfinite(high) and 0.0 <= low <= high):
+            value = getattr(self, field.name)
+            if value is None and field.default is None:
+                continue
+            try:
+                low, high = (float(v) for v in value)
+            except (TypeError, ValueError):
                 raise ValueError(
-                    f"DynamicsRanges.{field.name} must be (low, high) with 0 <= low <= high, "
+                    f"DynamicsRanges.{field.name} must be (low, high), got {value!r}"
+                ) from None
+            lowest = -math.inf if field.name == "imu_bias" else 0.0
+            if not (np.isfinite(low) and np.isfinite(high) and lowest <= low <= high):
+                bound = "" if field.name == "imu_bias" else "0 <= "
+                raise ValueError(
+                    f"DynamicsRanges.{field.name} must be (low, high) with {bound}low <= high, "
                     f"got {(low, high)}"
                 )
+            object.__setattr__(self, field.name, (low, high))
+        if self.control_step is not None and self.control_step[1] <= 0:
+            raise ValueError("DynamicsRanges.control_step must allow a step > 0")
+
+    @classmethod
+    def tan2018(cls) -> DynamicsRanges:
+        """Table I of Tan et al. 2018, "Sim-to-Real: Learning Agile Locomotion For
+        Quadruped Robots" (the classic ``minitaur_env_randomizer_config``)."""
+        return cls(
+            base_mass_scale=(0.8, 1.2),
+            leg_mass_scale=(0.8, 1.2),
+            battery_voltage=(14.0, 16.8),
+            motor_viscous_damping=(0.0, 0.05),
+            foot_friction=(0.5, 1.25),
+            inertia_scale=(0.5, 1.5),
+            motor_strength=(0.8, 1.2),
+            joint_friction=(0.0, 0.05),
+            control_step=(0.003, 0.02),
+            control_latency=(0.0, 0.04),
+            imu_noise_stdev=(0.0, 0.05),
+            imu_bias=(-0.05, 0.05),
+        )
+
+    @classmethod
+    def coerce(cls, value: DynamicsRanges | dict[str, Any] | str | None) -> DynamicsRanges:
+        """From what ``--env-kwargs`` can carry: ``"classic"``, ``"tan2018"`` or a mapping of
+        fields (``{motor_strength: [0.8, 0.8]}``: the others keep their defaults)."""
+        if value is None or value == "classic":
+            return cls()
+        if value == "tan2018":
+            return cls.tan2018()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, dict):
+            unknown = sorted(set(value) - {f.name for f in dataclasses.fields(cls)})
+            if unknown:
+                raise ValueError(f"DynamicsRanges has no field {unknown[0]!r}")
+            return cls(**value)
+        raise ValueError(
+            f"dynamics_ranges must be a DynamicsRanges, a mapping of its fields, 'classic' or "
+            f"'tan2018', got {value!r}"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
 class DynamicsSample:
-    """One draw of the physical parameters, reported in the reset info."""
+    """One draw of the physical parameters, reported in the reset info.
+
+    The optional entries are None where their range is None.
+    """
 
     base_mass: float
     leg_mass: float
@@ -47,13 +122,24 @@ class DynamicsSample:
     battery_voltage: float
     motor_viscous_damping: float
     foot_friction: float
+    base_inertia_scale: float | None = None
+    leg_inertia_scale: float | None = None
+    motor_strength: tuple[float, ...] | None = None
+    joint_friction: tuple[float, ...] | None = None
+    control_step: float | None = None
+    control_latency: float | None = None
+    imu_noise_stdev: float | None = None
+    imu_bias: tuple[float, ...] | None = None
 
 
 def sample_dynamics(
     robot: Minitaur, ranges: DynamicsRanges, rng: np.random.Generator
 ) -> DynamicsSample:
-    """Draw every parameter from ``rng``, in a fixed order, so a seed fixes them all."""
-    return DynamicsSample(
+    """Draw every parameter from ``rng``, in a fixed order, so a seed fixes them all.
+
+    The classic parameters come first, so the classic ranges draw what they always drew.
+    """
+    sample = DynamicsSample(
         base_mass=robot.base_mass_urdf * rng.uniform(*ranges.base_mass_scale),
         leg_mass=robot.leg_mass_urdf * rng.uniform(*ranges.leg_mass_scale),
         motor_mass=robot.motor_mass_urdf * rng.uniform(*ranges.leg_mass_scale),
@@ -61,11 +147,84 @@ def sample_dynamics(
         motor_viscous_damping=rng.uniform(*ranges.motor_viscous_damping),
         foot_friction=rng.uniform(*ranges.foot_friction),
     )
+    extra: dict[str, Any] = {}
+    if ranges.inertia_scale is not None:
+        extra["base_inertia_scale"] = rng.uniform(*ranges.inertia_scale)
+        extra["leg_inertia_scale"] = rng.uniform(*ranges.inertia_scale)
+    if ranges.motor_strength is not None:
+        extra["motor_strength"] = tuple(
+            float(v) for v in rng.uniform(*ranges.motor_strength, size=NUM_MOTORS)
+        )
+    if ranges.joint_friction is not None:
+        extra["joint_friction"] = tuple(
+            float(v) for v in rng.uniform(*ranges.joint_friction, size=NUM_MOTORS)
+        )
+    for name in ("control_step", "control_latency", "imu_noise_stdev"):
+        bounds = getattr(ranges, name)
+        if bounds is not None:
+            extra[name] = rng.uniform(*bounds)
+    if ranges.imu_bias is not None:
+        extra["imu_bias"] = tuple(float(v) for v in rng.uniform(*ranges.imu_bias, size=3))
+    return dataclasses.replace(sample, **extra)
 
 
 def apply_dynamics(robot: Minitaur, sample: DynamicsSample) -> None:
+    """Set the robot's physical parameters (the env applies the timing and sensing ones)."""
     robot.set_base_mass(sample.base_mass)
     robot.set_leg_masses(sample.leg_mass, sample.motor_mass)
     robot.set_battery_voltage(sample.battery_voltage)
     robot.set_motor_viscous_damping(sample.motor_viscous_damping)
     robot.set_foot_friction(sample.foot_friction)
+    if sample.base_inertia_scale is not None and sample.leg_inertia_scale is not None:
+        robot.scale_inertias(sample.base_inertia_scale, sample.leg_inertia_scale)
+    if sample.motor_strength is not None:
+        robot.set_motor_strength(sample.motor_strength)
+    if sample.joint_friction is not None:
+        robot.set_joint_friction(sample.joint_friction)
+
+
+@dataclasses.dataclass(frozen=True)
+class Pushes:
+    """Horizontal pushes on the base: a force of a random magnitude in ``force`` (N), in a
+    random direction of the ground plane, for ``duration`` seconds every ``interval``
+    seconds of an episode (the first at ``interval``). The defaults are Tan et al. 2018's.
+    """
+
+    force: Range = (130.0, 220.0)
+    interval: float = 1.2
+    duration: float = 0.06
+
+    def __post_init__(self) -> None:
+        low, high = self.force
+        if not (np.isfinite(low) and np.isfinite(high) and 0 <= low <= high):
+            raise ValueError(
+                f"Pushes.force must be (low, high) with 0 <= low <= high, got {self.force}"
+            )
+        if not (0 < self.duration <= self.interval < math.inf):
+            raise ValueError(
+                f"Pushes needs 0 < duration <= interval, got duration {self.duration}, "
+                f"interval {self.interval}"
+            )
+        object.__setattr__(self, "force", (float(low), float(high)))
+
+    @classmethod
+    def coerce(cls, value: Pushes | dict[str, Any] | bool | None) -> Pushes | None:
+        """``True`` (Tan et al.'s pushes), a mapping of fields, or None/False (no pushes)."""
+        if value is None or value is False:
+            return None
+        if value is True:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, dict):
+            unknown = sorted(set(value) - {f.name for f in dataclasses.fields(cls)})
+            if unknown:
+                raise ValueError(f"Pushes has no field {unknown[0]!r}")
+            return cls(**value)
+        raise ValueError(f"pushes must be True, a Pushes or a mapping of its fields, got {value!r}")
+
+    def draw(self, rng: np.random.Generator) -> np.ndarray:
+        """One push's world-frame force vector (N)."""
+        magnitude = rng.uniform(*self.force)
+        angle = rng.uniform(0.0, 2.0 * math.pi)
+        return np.array([magnitude * math.cos(angle), magnitude * math.sin(angle), 0.0])

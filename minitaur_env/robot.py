@@ -8,6 +8,7 @@ Motor order, directions and the leg model follow the classic
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -133,6 +134,9 @@ class Minitaur:
         self.base_mass_urdf = sim.mass(self.body, -1)
         self.leg_mass_urdf = sim.mass(self.body, self.leg_links[0])
         self.motor_mass_urdf = sim.mass(self.body, self.motor_links[0])
+        self._inertias_urdf = {
+            link: sim.inertia(self.body, link) for link in [-1, *self.leg_links, *self.motor_links]
+        }
 
         self._set_initial_pose()
         for right, left in zip(self.knee_joints[1::2], self.knee_joints[0::2], strict=True):
@@ -165,10 +169,17 @@ class Minitaur:
         self.observed_torques = np.zeros(NUM_MOTORS)
         self.overheat_steps = np.zeros(NUM_MOTORS, dtype=np.int64)
         self.motors_enabled = np.ones(NUM_MOTORS, dtype=bool)
+        self.motor_strength = np.ones(NUM_MOTORS)
 
     # -- actuation -------------------------------------------------------------
-    def apply_motor_targets(self, targets: np.ndarray) -> None:
-        """Command motor angles (observation convention) for the next physics step."""
+    def apply_motor_targets(
+        self, targets: np.ndarray, pd_state: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> None:
+        """Command motor angles (observation convention) for the next physics step.
+
+        ``pd_state``: the (angles, velocities) the PD loop sees, when they lag the true
+        state (``pd_latency``); the motor's back-EMF always uses the true velocity.
+        """
         if self.motor_control == "position":
             self._apply_position_servo(targets)
             return
@@ -176,14 +187,19 @@ class Minitaur:
         if self.motor_velocity_limit < math.inf:
             reach = self.time_step * self.motor_velocity_limit
             targets = np.minimum(np.maximum(targets, angles - reach), angles + reach)
+        seen_angles, seen_velocities = pd_state if pd_state is not None else (angles, velocities)
         if self.motor_control == "accurate":
-            torques, self.observed_torques = self.motor_model.torques(targets, angles, velocities)
+            torques, self.observed_torques = self.motor_model.torques(
+                targets, seen_angles, seen_velocities, velocities
+            )
+            torques = torques * self.motor_strength
             if self.overheat_protection:
                 self._update_overheat(torques)
                 torques = np.where(self.motors_enabled, torques, 0.0)
         else:
-            torques = -self.kp * (angles - targets) - self.kd * velocities
+            torques = -self.kp * (seen_angles - targets) - self.kd * seen_velocities
             self.observed_torques = torques
+            torques = torques * self.motor_strength
         self._sim.set_torques(self.body, self.motor_joints, torques * MOTOR_DIRECTIONS)
 
     def _apply_position_servo(self, targets: np.ndarray) -> None:
@@ -225,6 +241,14 @@ class Minitaur:
         _, orientation = self.base_pose()
         return np.concatenate([angles, velocities, self.motor_torques(), orientation])
 
+    def sensor_reading(self) -> np.ndarray:
+        """:meth:`observation` plus the base's angular velocity in the base frame (31)."""
+        from minitaur_env.sensors import world_to_base
+
+        reading = self.observation()
+        rates = world_to_base(reading[-4:], self._sim.base_angular_velocity(self.body))
+        return np.concatenate([reading, rates])
+
     # -- dynamics parameters -----------------------------------------------------
     def set_base_mass(self, mass: float) -> None:
         self._sim.set_mass(self.body, -1, mass)
@@ -245,3 +269,20 @@ class Minitaur:
 
     def set_motor_viscous_damping(self, damping: float) -> None:
         self.motor_model.viscous_damping = damping
+
+    def scale_inertias(self, base_scale: float, leg_scale: float) -> None:
+        """The base's URDF inertia times ``base_scale``; every leg link's and motor's times
+        ``leg_scale``."""
+        for link, diagonal in self._inertias_urdf.items():
+            scale = base_scale if link == -1 else leg_scale
+            self._sim.set_inertia(self.body, link, [scale * value for value in diagonal])
+
+    def set_motor_strength(self, ratios: Sequence[float]) -> None:
+        """Factors on each motor's output torque (what the sensor reports is unchanged)."""
+        self.motor_strength = np.asarray(ratios, dtype=float)
+
+    def set_joint_friction(self, frictions: Sequence[float]) -> None:
+        """Coulomb friction torque (N m) of each knee joint."""
+        if self.motor_control == "position":
+            return  # the knees are free there too, but only the motor model reads them
+        self._sim.set_joint_friction(self.body, self.knee_joints, frictions)

@@ -132,6 +132,15 @@ class BulletSim:
     def set_mass(self, body: int, link: int, mass: float) -> None:
         pybullet.changeDynamics(body, link, mass=mass, physicsClientId=self._id)
 
+    def inertia(self, body: int, link: int) -> tuple[float, float, float]:
+        """The link's local inertia diagonal (kg m^2)."""
+        return tuple(pybullet.getDynamicsInfo(body, link, physicsClientId=self._id)[2])
+
+    def set_inertia(self, body: int, link: int, diagonal: Sequence[float]) -> None:
+        pybullet.changeDynamics(
+            body, link, localInertiaDiagonal=list(diagonal), physicsClientId=self._id
+        )
+
     def set_lateral_friction(self, body: int, link: int, friction: float) -> None:
         pybullet.changeDynamics(body, link, lateralFriction=friction, physicsClientId=self._id)
 
@@ -180,14 +189,31 @@ class BulletSim:
 
     def free_joints(self, body: int, joints: Sequence[int]) -> None:
         """Switch off PyBullet's built-in velocity motors so torques drive the joints."""
+        self.set_joint_friction(body, joints, [0.0] * len(joints))
+
+    def set_joint_friction(
+        self, body: int, joints: Sequence[int], frictions: Sequence[float]
+    ) -> None:
+        """Coulomb friction on free joints: a velocity motor with target 0 and this force."""
         pybullet.setJointMotorControlArray(
             body,
             list(joints),
             pybullet.VELOCITY_CONTROL,
             targetVelocities=[0.0] * len(joints),
-            forces=[0.0] * len(joints),
+            forces=list(frictions),
             physicsClientId=self._id,
         )
+
+    def apply_base_force(self, body: int, force: Sequence[float]) -> None:
+        """Push the base's centre of mass with a world-frame force for the next step."""
+        position, _ = self.base_pose(body)
+        pybullet.applyExternalForce(
+            body, -1, list(force), list(position), pybullet.WORLD_FRAME, physicsClientId=self._id
+        )
+
+    def base_angular_velocity(self, body: int) -> np.ndarray:
+        """The base's angular velocity in the world frame (rad/s)."""
+        return np.array(pybullet.getBaseVelocity(body, physicsClientId=self._id)[1])
 
     def set_torques(self, body: int, joints: Sequence[int], torques: Sequence[float]) -> None:
         pybullet.setJointMotorControlArray(

@@ -1,0 +1,269 @@
+"""Sim-to-real knobs: each changes behaviour the way it should, is seeded, and is off by default."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pybullet
+import pytest
+
+import minitaur_env  # noqa: F401
+from minitaur_env import DynamicsRanges, MinitaurBulletEnv, Pushes
+from minitaur_env.robot import MOTOR_DIRECTIONS, leg_model_to_motor_angles
+from minitaur_env.sensors import SensorHistory, euler_to_quaternion, quaternion_to_euler
+
+# Every classic range pinned to one value, so that only the knob under test differs.
+PINNED = {
+    "base_mass_scale": (1.0, 1.0), "leg_mass_scale": (1.0, 1.0), "battery_voltage": (16.0, 16.0),
+    "motor_viscous_damping": (0.0, 0.0), "foot_friction": (1.0, 1.0),
+}  # fmt: skip
+
+
+def observations(steps: int = 30, seed: int = 0, action: np.ndarray | None = None, **kwargs):
+    """Observations and infos of ``steps`` steps of random (or fixed) actions."""
+    env = MinitaurBulletEnv(**{"randomize_dynamics": False, **kwargs})
+    rng = np.random.default_rng(1)
+    obs, info = env.reset(seed=seed)
+    seen, infos = [obs], [info]
+    for _ in range(steps):
+        step = rng.uniform(-1, 1, 8) if action is None else action
+        obs, _, terminated, _, info = env.step(step)
+        seen.append(obs)
+        infos.append(info)
+        if terminated:
+            break
+    env.close()
+    return np.array(seen), infos
+
+
+# -- defaults ---------------------------------------------------------------------------
+def test_defaults_draw_only_the_classic_parameters():
+    env = MinitaurBulletEnv()
+    _, info = env.reset(seed=0)
+    sample = info["dynamics"]
+    extra = [f.name for f in dataclasses.fields(sample)][6:]
+    assert extra and all(getattr(sample, name) is None for name in extra)
+    assert env.dt == 0.01 and env.observation_space.shape == (28,)
+    env.close()
+
+
+# -- latency ----------------------------------------------------------------------------
+@pytest.mark.parametrize("steps", [1, 2, 3])
+def test_control_latency_delays_observations_by_whole_steps(steps):
+    plain, _ = observations()
+    late, _ = observations(control_latency=0.01 * steps)
+    np.testing.assert_array_equal(late[steps:], plain[:-steps])
+    assert np.abs(late[steps:] - plain[steps:]).max() > 0.1  # control: not the same series
+    np.testing.assert_array_equal(late[:steps], np.repeat(plain[:1], steps, axis=0))
+
+
+def test_sensor_history_interpolates_between_physics_steps():
+    history = SensorHistory(physics_time_step=0.002, max_delay=0.01)
+    for value in range(10):
+        history.append(np.full(3, float(value)))  # newest: 9
+    assert history.delayed(0.0)[0] == 9.0
+    assert history.delayed(0.004)[0] == pytest.approx(7.0)
+    assert history.delayed(0.005)[0] == pytest.approx(6.5)
+    assert history.delayed(1.0)[0] == 3.0  # older than kept: the oldest reading (maxlen 7)
+
+
+def test_pd_latency_makes_the_position_loop_overshoot():
+    swing = np.array([0, 0, 0, 0, 1, 1, 1, 1], dtype=float)
+    settle = {}
+    for latency in (0.0, 0.012):
+        angles, _ = observations(40, action=swing, on_rack=True, pd_latency=latency)
+        settle[latency] = angles[:, 0]
+    # Without latency the motor moves to its target without passing it.
+    assert settle[0.0].min() == pytest.approx(settle[0.0][-1], abs=1e-3)
+    assert settle[0.012].min() < settle[0.0][-1] - 0.1
+
+
+# -- physical parameters ----------------------------------------------------------------
+def test_motor_strength_scales_the_applied_torque(monkeypatch):
+    action = np.full(8, 0.5)
+    for strength in (1.0, 0.8):
+        env = MinitaurBulletEnv(
+            dynamics_ranges={**PINNED, "motor_strength": (strength, strength)}, on_rack=True
+        )
+        env.reset(seed=0)
+        robot = env.robot
+        angles, velocities = robot.motor_angles_velocities()
+        unscaled, _ = robot.motor_model.torques(
+            leg_model_to_motor_angles(action), angles, velocities
+        )
+        applied: list = []
+        monkeypatch.setattr(env.sim, "set_torques", lambda b, j, t, seen=applied: seen.append(t))
+        env.step(action)
+        env.close()
+        assert np.abs(unscaled).max() > 0.1
+        np.testing.assert_allclose(applied[0], strength * unscaled * MOTOR_DIRECTIONS)
+
+
+def test_inertia_scale_sets_the_link_inertias():
+    env = MinitaurBulletEnv(dynamics_ranges={"inertia_scale": (1.5, 1.5)})
+    env.reset(seed=0)
+    robot = env.robot
+    urdf = robot._inertias_urdf
+    np.testing.assert_allclose(env.sim.inertia(robot.body, -1), 1.5 * np.array(urdf[-1]))
+    leg = robot.leg_links[0]
+    np.testing.assert_allclose(env.sim.inertia(robot.body, leg), 1.5 * np.array(urdf[leg]))
+    env.close()
+
+
+def test_joint_friction_slows_the_legs():
+    extend = np.array([1, 1, 1, 1, 0.5, 0.5, 0.5, 0.5])
+    travel = {}
+    for friction in (0.0, 20.0):
+        ranges = {**PINNED, "joint_friction": (friction, friction)}
+        angles, _ = observations(2, action=extend, on_rack=True, randomize_dynamics=True,
+                                 dynamics_ranges=ranges)  # fmt: skip
+        travel[friction] = np.abs(angles[-1, :8] - angles[0, :8]).mean()
+    assert travel[20.0] < 0.8 * travel[0.0]
+
+
+def test_contact_friction_range_is_applied():
+    env = MinitaurBulletEnv(dynamics_ranges={"foot_friction": (0.5, 0.5)})
+    _, info = env.reset(seed=0)
+    assert info["dynamics"].foot_friction == 0.5
+    foot = env.robot.foot_links[0]
+    assert pybullet.getDynamicsInfo(env.robot.body, foot, physicsClientId=env.sim._id)[1] == 0.5
+    env.close()
+
+
+# -- control step ---------------------------------------------------------------------
+def test_control_step_sets_the_time_per_action():
+    slow = MinitaurBulletEnv(control_time_step=0.02, randomize_dynamics=False, pushes=True)
+    assert slow.dt == 0.02 and slow.metadata["render_fps"] == 50
+    slow.reset(seed=0)
+    pushed = []
+    for step in range(70):
+        info = slow.step(np.zeros(8))[-1]
+        if info["push_force"].any():
+            pushed.append(step)
+    slow.close()
+    assert pushed[0] == 60  # the first push, at 1.2 s, comes at 60 steps of 20 ms, not 120
+    with pytest.raises(ValueError, match="control_time_step must be a positive multiple"):
+        MinitaurBulletEnv(control_time_step=0.003)
+
+
+def test_a_randomized_control_step_snaps_to_physics_steps():
+    env = MinitaurBulletEnv(dynamics_ranges={"control_step": (0.003, 0.02)})
+    steps = set()
+    for seed in range(8):
+        _, info = env.reset(seed=seed)
+        assert 0.003 <= info["dynamics"].control_step <= 0.02
+        assert env.dt == pytest.approx(0.002 * max(1, round(info["dynamics"].control_step / 0.002)))
+        steps.add(round(env.dt, 3))
+    assert len(steps) > 3
+    env.close()
+
+
+# -- pushes -----------------------------------------------------------------------------
+def test_pushes_move_the_base_and_follow_the_seed():
+    standing = np.zeros(8)
+    runs = {}
+    for name, kwargs in (("still", {}), ("pushed", {"pushes": {"force": (200.0, 200.0)}})):
+        _, infos = observations(135, action=standing, **kwargs)
+        runs[name] = infos
+    forces = [i for i, info in enumerate(runs["pushed"][1:]) if info["push_force"].any()]
+    assert forces == list(range(120, 126))  # at 1.2 s, for 0.06 s (6 steps of 10 ms)
+    assert np.linalg.norm(runs["pushed"][121]["push_force"]) == pytest.approx(200.0)
+    moved = {
+        name: np.linalg.norm(infos[-1]["base_position"][:2] - infos[118]["base_position"][:2])
+        for name, infos in runs.items()
+    }
+    assert moved["pushed"] > 0.05 > moved["still"] * 5
+    first, again, other = (
+        observations(135, action=standing, seed=seed, pushes=True)[0] for seed in (0, 0, 1)
+    )
+    np.testing.assert_array_equal(again, first)  # same seed, same pushes
+    assert not np.array_equal(other, first)
+
+
+# -- IMU --------------------------------------------------------------------------------
+def test_euler_conversions_match_pybullet():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        quaternion = rng.normal(size=4)
+        quaternion /= np.linalg.norm(quaternion)
+        euler = quaternion_to_euler(quaternion)
+        np.testing.assert_allclose(euler, pybullet.getEulerFromQuaternion(quaternion), atol=1e-9)
+        np.testing.assert_allclose(
+            euler_to_quaternion(euler), pybullet.getQuaternionFromEuler(euler), atol=1e-9
+        )
+
+
+def test_imu_observation_holds_motor_angles_roll_pitch_and_rates():
+    classic, _ = observations(20)
+    imu, _ = observations(20, observation="imu")
+    env = MinitaurBulletEnv(observation="imu")
+    assert env.observation_space.shape == (12,)
+    assert all(env.observation_space.contains(obs) for obs in imu)
+    env.close()
+    np.testing.assert_array_equal(imu[:, :8], classic[:, :8])
+    for row, quaternion in zip(imu, classic[:, 24:], strict=True):
+        np.testing.assert_allclose(row[8:10], quaternion_to_euler(quaternion)[:2], atol=1e-5)
+    assert np.abs(imu[1:, 10:]).max() > 0.05  # the base rocks: rates are read
+
+
+def test_imu_bias_shifts_and_imu_noise_spreads_roll_and_pitch():
+    still = np.zeros(8)
+    true, _ = observations(50, action=still, on_rack=True, observation="imu")
+    biased, _ = observations(50, action=still, on_rack=True, observation="imu", imu_bias=0.05)
+    np.testing.assert_allclose(biased[:, 8:10], true[:, 8:10] + 0.05, atol=1e-6)
+    np.testing.assert_array_equal(biased[:, :8], true[:, :8])
+    noisy, _ = observations(50, action=still, on_rack=True, observation="imu", imu_noise_stdev=0.05)
+    error = noisy[:, 8:10] - true[:, 8:10]
+    assert 0.035 < error.std() < 0.065 and abs(error.mean()) < 0.02
+    classic_biased, _ = observations(5, action=still, on_rack=True, imu_bias=[0.05, 0.0, 0.0])
+    classic, _ = observations(5, action=still, on_rack=True)
+    rolls = [quaternion_to_euler(q)[0] for q in (classic_biased[-1, 24:], classic[-1, 24:])]
+    assert rolls[0] - rolls[1] == pytest.approx(0.05, abs=1e-5)
+
+
+# -- the preset -------------------------------------------------------------------------
+def test_the_randomized_id_uses_tan2018_and_is_reproducible():
+    spec = gym.spec("MinitaurBulletRandomized-v0")
+    assert spec.reward_threshold == 15.0 and spec.kwargs["pd_latency"] == 0.003
+    runs = []
+    for seed in (3, 3, 4):
+        env = gym.make("MinitaurBulletRandomized-v0")
+        obs, info = env.reset(seed=seed)
+        env.action_space.seed(0)
+        series = [obs]
+        for _ in range(20):
+            series.append(env.step(env.action_space.sample())[0])
+        runs.append((np.array(series), info["dynamics"]))
+        env.close()
+    ranges = DynamicsRanges.tan2018()
+    dynamics = runs[0][1]
+    assert ranges.control_latency[0] <= dynamics.control_latency <= ranges.control_latency[1]
+    assert all(0.8 <= s <= 1.2 for s in dynamics.motor_strength)
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    assert runs[0][1] == runs[1][1] and runs[0][1] != runs[2][1]
+    assert not np.array_equal(runs[0][0], runs[2][0])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"observation": "lidar"}, "observation must be one of"),
+        ({"control_latency": -0.01}, "control_latency must be finite and >= 0"),
+        ({"imu_bias": float("nan")}, "imu_bias must be finite"),
+        ({"dynamics_ranges": {"stiffness": (0, 1)}}, "DynamicsRanges has no field 'stiffness'"),
+        ({"dynamics_ranges": "tan2019"}, "dynamics_ranges must be a DynamicsRanges"),
+        ({"dynamics_ranges": {"motor_strength": 0.8}}, "motor_strength must be (low, high)"),
+        ({"pushes": {"interval": 0.05}}, "Pushes needs 0 < duration <= interval"),
+        ({"motor_control": "position", "pd_latency": 0.003}, "need a motor model"),
+    ],
+)
+def test_bad_knobs_are_one_clear_error(kwargs, message):
+    with pytest.raises(ValueError) as error:
+        MinitaurBulletEnv(**kwargs)
+    assert message in str(error.value) and "\n" not in str(error.value)
+
+
+def test_pushes_default_to_tan2018():
+    assert Pushes.coerce(True) == Pushes(force=(130.0, 220.0), interval=1.2, duration=0.06)
