@@ -1,0 +1,105 @@
+"""Robustness of trained policies to the sim-to-real knobs: one row per policy, one column
+per condition, each cell the mean +- std return and the falls over unseen episodes.
+
+    python benchmarks/robustness.py                          # the shipped policies
+    python benchmarks/robustness.py --policy preset-ppo=logs/preset/ppo/M_1/best_model.zip
+
+Every cell is what ``python evaluate.py --model M --episodes 20 --seed 12345
+--env MinitaurBulletEnv-v0 --env-kwargs K`` reports, with K the column's keyword
+arguments (printed below the table). The episodes' seeds (12345..) are the README's
+report seeds, never used in training or selection; the env is always
+``MinitaurBulletEnv-v0``, whatever the policy was trained on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from minitaur_env import RANDOMIZED_KWARGS
+from minitaur_env.training.envs import make_env
+from minitaur_env.training.evaluation import (
+    load_policy,
+    pretrained_models,
+    run_episodes,
+    summarize,
+)
+
+ENV_ID = "MinitaurBulletEnv-v0"
+CONDITIONS: dict[str, dict[str, Any]] = {
+    "nominal": {},
+    "latency 20 ms": {"control_latency": 0.02},
+    "latency 40 ms": {"control_latency": 0.04},
+    "motor strength 80 %": {"dynamics_ranges": {"motor_strength": [0.8, 0.8]}},
+    "contact friction 0.5": {"dynamics_ranges": {"foot_friction": [0.5, 0.5]}},
+    "pushes": {"pushes": True},
+    "full preset": dict(RANDOMIZED_KWARGS),
+}
+
+
+def judge(model: Path, env_kwargs: dict[str, Any], episodes: int, seed: int) -> dict[str, float]:
+    policy = load_policy(model, device="cpu")
+    env = make_env(ENV_ID, env_kwargs)
+    try:
+        summary = summarize(run_episodes(policy, env, episodes, seed))
+    finally:
+        env.close()
+    return {
+        "mean": summary["return"]["mean"],
+        "std": summary["return"]["std"],
+        "falls": int(summary["fell"]["count"]),
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--policy", action="append", default=[], metavar="LABEL=MODEL.zip",
+        help="a policy to judge (default: every shipped policy)",
+    )  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=12345)
+    parser.add_argument("--conditions", nargs="+", choices=list(CONDITIONS), metavar="NAME")
+    parser.add_argument("--json", type=Path, help="also write the cells as JSON")
+    args = parser.parse_args()
+    policies = {}
+    for item in args.policy:
+        label, sep, path = item.partition("=")
+        if not sep or not Path(path).is_file():
+            parser.error(f"--policy expects LABEL=MODEL.zip with an existing file, got {item!r}")
+        policies[label] = Path(path)
+    if not args.policy:
+        policies = {f"shipped {model.parents[1].name}": model for _, model in pretrained_models()}
+    conditions = {name: CONDITIONS[name] for name in args.conditions or CONDITIONS}
+
+    cells: dict[str, dict[str, dict[str, float]]] = {}
+    for label, model in policies.items():
+        for name, kwargs in conditions.items():
+            cell = judge(model, kwargs, args.episodes, args.seed)
+            cells.setdefault(label, {})[name] = cell
+            print(f"{label:24s} {name:22s} {cell['mean']:6.2f} +- {cell['std']:5.2f}  "
+                  f"falls {cell['falls']}/{args.episodes}", flush=True)  # fmt: skip
+
+    print(
+        f"\n| policy ({args.episodes} episodes, seeds {args.seed}..) | "
+        + " | ".join(conditions)
+        + " |"
+    )
+    print("|---" * (len(conditions) + 1) + "|")
+    for label, row in cells.items():
+        texts = [f"{c['mean']:.2f} ± {c['std']:.2f} ({c['falls']} falls)" for c in row.values()]
+        print(f"| {label} | " + " | ".join(texts) + " |")
+    print()
+    for name, kwargs in conditions.items():
+        flags = " ".join(f"{k}={json.dumps(v).replace(' ', '')}" for k, v in kwargs.items())
+        print(f"{name}: --env-kwargs {flags}" if flags else f"{name}: (no --env-kwargs)")
+    if args.json:
+        args.json.write_text(json.dumps(cells, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
