@@ -82,9 +82,13 @@ def main() -> int:
             continue
         row = summarize(folder, (threshold,))[0]
         label = f"{threshold:g}"
+        reached = row[f"reached_{label}"]
+        cut = int(row["seeds_unfinished"]) + int(row["seeds_failed"])
+        if cut:  # only finished seeds count; say that some are not
+            reached += f" (+{cut} not finished)"
         steps, minutes = row[f"median_steps_to_{label}"], row[f"median_minutes_to_{label}"]
         print(
-            f"| {env_id} | {algo} | {label} | {row[f'reached_{label}']} | "
+            f"| {env_id} | {algo} | {label} | {reached} | "
             f"{row[f'steps_to_{label}_per_seed']} | "
             f"{'-' if np.isnan(steps) else f'{steps:,.0f}'} | "
             f"{'-' if np.isnan(minutes) else f'{minutes:.1f}'} | {row['final_per_seed']} |"
