@@ -451,7 +451,8 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     assert tuned["buffer_size"] == 100_000 and tuned["n_steps"] == 5
     assert tuned["policy_kwargs"] == tutorial["policy_kwargs"]  # inherited through `base`
     assert load_hyperparams("sac", "minitaur_env:MinitaurBullet-v0") == tuned
-    assert load_hyperparams("sac", "Pendulum-v1") == {"n_timesteps": 100000, "policy": "MlpPolicy"}
+    assert load_hyperparams("sac", "Acrobot-v1") == {"n_timesteps": 100000, "policy": "MlpPolicy"}
+    assert load_hyperparams("sac", "Pendulum-v1")["learning_rate"] == 1e-3  # its own entry
     with pytest.raises(UsageError, match="no entry 'nope'"):
         load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="nope")
 
