@@ -19,14 +19,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from select_policy import judge  # benchmarks/ is on the path of a script run from it
+
 from minitaur_env import RANDOMIZED_KWARGS
-from minitaur_env.training.envs import make_env
-from minitaur_env.training.evaluation import (
-    load_policy,
-    pretrained_models,
-    run_episodes,
-    summarize,
-)
+from minitaur_env.training.evaluation import pretrained_models
 
 ENV_ID = "MinitaurBulletEnv-v0"
 CONDITIONS: dict[str, dict[str, Any]] = {
@@ -38,20 +34,6 @@ CONDITIONS: dict[str, dict[str, Any]] = {
     "pushes": {"pushes": True},
     "full preset": dict(RANDOMIZED_KWARGS),
 }
-
-
-def judge(model: Path, env_kwargs: dict[str, Any], episodes: int, seed: int) -> dict[str, float]:
-    policy = load_policy(model, device="cpu")
-    env = make_env(ENV_ID, env_kwargs)
-    try:
-        summary = summarize(run_episodes(policy, env, episodes, seed))
-    finally:
-        env.close()
-    return {
-        "mean": summary["return"]["mean"],
-        "std": summary["return"]["std"],
-        "falls": int(summary["fell"]["count"]),
-    }
 
 
 def main() -> int:
@@ -78,7 +60,7 @@ def main() -> int:
     cells: dict[str, dict[str, dict[str, float]]] = {}
     for label, model in policies.items():
         for name, kwargs in conditions.items():
-            cell = judge(model, kwargs, args.episodes, args.seed)
+            cell = judge(model, args.episodes, args.seed, ENV_ID, kwargs)
             cells.setdefault(label, {})[name] = cell
             print(f"{label:24s} {name:22s} {cell['mean']:6.2f} +- {cell['std']:5.2f}  "
                   f"falls {cell['falls']}/{args.episodes}", flush=True)  # fmt: skip

@@ -37,9 +37,12 @@ from minitaur_env.training.evaluation import (
 from minitaur_env.training.run_folder import RunFolder
 
 
-def judge(model: Path, episodes: int, seed: int) -> dict[str, float]:
+def judge(
+    model: Path, episodes: int, seed: int, env_id: str | None = None, env_kwargs: dict | None = None
+) -> dict[str, float]:
+    """Mean, std, falls and speed of ``episodes`` deterministic episodes from ``seed``."""
     policy = load_policy(model, device="cpu")
-    env = make_env(policy.env_id or "MinitaurBulletEnv-v0", {})
+    env = make_env(env_id or policy.env_id or "MinitaurBulletEnv-v0", env_kwargs or {})
     try:
         summary = summarize(run_episodes(policy, env, episodes, seed))
     finally:

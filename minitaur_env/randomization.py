@@ -99,14 +99,18 @@ class DynamicsRanges:
         if isinstance(value, cls):
             return value
         if isinstance(value, dict):
-            unknown = sorted(set(value) - {f.name for f in dataclasses.fields(cls)})
-            if unknown:
-                raise ValueError(f"DynamicsRanges has no field {unknown[0]!r}")
-            return cls(**value)
+            return _from_mapping(cls, value)
         raise ValueError(
             f"dynamics_ranges must be a DynamicsRanges, a mapping of its fields, 'classic' or "
             f"'tan2018', got {value!r}"
         )
+
+
+def _from_mapping(cls: Any, values: dict[str, Any]) -> Any:
+    unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
+    if unknown:
+        raise ValueError(f"{cls.__name__} has no field {unknown[0]!r}")
+    return cls(**values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -217,10 +221,7 @@ class Pushes:
         if isinstance(value, cls):
             return value
         if isinstance(value, dict):
-            unknown = sorted(set(value) - {f.name for f in dataclasses.fields(cls)})
-            if unknown:
-                raise ValueError(f"Pushes has no field {unknown[0]!r}")
-            return cls(**value)
+            return _from_mapping(cls, value)
         raise ValueError(f"pushes must be True, a Pushes or a mapping of its fields, got {value!r}")
 
     def draw(self, rng: np.random.Generator) -> np.ndarray:
