@@ -59,6 +59,12 @@ def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:
     )
     add("--device", default="auto", help="torch device: auto, cpu, cuda (default: auto)")
     add("--num-threads", type=int, default=0, help="torch CPU threads; 0: torch's default")
+    add(
+        "-i",
+        "--trained-agent",
+        metavar="MODEL_ZIP",
+        help="start from this model (and its VecNormalize statistics), e.g. a shipped one",
+    )
     add("--resume", metavar="RUN_DIR", help="continue this run from its newest checkpoint")
     add("-v", "--verbose", type=int, default=0, help="1: SB3's logger tables too (default: 0)")
     return suppress_defaults(parser) if without_defaults else parser

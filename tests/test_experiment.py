@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from minitaur_env.training import experiment as experiment_module
 from minitaur_env.training.aggregate import wall_clock_at
 from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.callbacks import save_checked_checkpoint
+from minitaur_env.training.run_folder import load_pickle
 
 SMALL_SAC = {
     "learning_starts": 20, "buffer_size": 2000, "batch_size": 16, "train_freq": 1,
@@ -288,3 +291,48 @@ def test_sbx_weights_are_checked_too():
     assert not weights_finite(model)
     with pytest.raises(TrainingDiverged, match="actor_state"):
         check_weights(model)
+
+
+def test_a_trained_agent_starts_a_new_run_with_its_weights_statistics_and_buffer(tmp_path):
+    first = pendulum(tmp_path, hyperparams={"normalize": True}).run().run
+    trained = load_model(SAC, first.zoo_model)
+    shutil.copy(first.replay_buffer(200), first.zoo_model.with_name("replay_buffer.pkl"))
+
+    def started(**settings) -> Experiment:
+        experiment = pendulum(tmp_path, hyperparams={"normalize": True}, seed=5, **settings)
+        experiment.build()
+        experiment.close()
+        return experiment
+
+    fine_tuned, fresh = started(trained_agent=str(first.zoo_model)), started()
+    weights = _policy_weights(trained)
+    np.testing.assert_array_equal(_policy_weights(fine_tuned.model), weights)
+    assert not np.allclose(_policy_weights(fresh.model), weights)  # control: a fresh start
+    saved = load_pickle(first.zoo_vecnormalize)
+    np.testing.assert_array_equal(fine_tuned.env.obs_rms.mean, saved.obs_rms.mean)
+    assert fresh.env.obs_rms.count < 1  # a fresh run's statistics are empty
+    stored = load_pickle(first.replay_buffer(200)).size()
+    assert stored > 100 and fine_tuned.model.replay_buffer.size() == stored
+    assert fresh.model.replay_buffer.size() == 0
+    # It trains on, counting its own steps, into its own folder.
+    result = pendulum(
+        tmp_path, hyperparams={"normalize": True}, trained_agent=str(first.zoo_model)
+    ).run()
+    assert result.status == "completed" and result.trained_steps == result.num_timesteps == 200
+    assert result.run.path != first.path
+    assert result.run.read_config()["trained_agent"] == str(first.zoo_model)
+
+
+def test_a_trained_agent_that_does_not_fit_is_one_line(tmp_path):
+    run = pendulum(tmp_path).run().run  # raw observations
+    with pytest.raises(UsageError, match="no model file at"):
+        pendulum(tmp_path, trained_agent=str(tmp_path / "missing.zip"))
+    with pytest.raises(UsageError, match=r"trained without VecNormalize.*normalize=false"):
+        pendulum(tmp_path, hyperparams={"normalize": True}, trained_agent=str(run.zoo_model)).run()
+    with pytest.raises(UsageError, match=r"is a sb3 sac model .* pass --algo sac --backend sb3"):
+        ExperimentConfig.resolve(
+            "td3", "Pendulum-v1", n_timesteps=50, trained_agent=str(run.zoo_model),
+            eval_freq=0, save_freq=0, vec_env="dummy", device="cpu",
+        )  # fmt: skip
+    with pytest.raises(UsageError, match=r"does not fit MountainCarContinuous-v0: .*space"):
+        pendulum(tmp_path, env="MountainCarContinuous-v0", trained_agent=str(run.zoo_model)).run()

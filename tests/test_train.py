@@ -415,6 +415,8 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
         (["--env-kwargs", "energy_weight=-1"], "energy_weight must be finite and >= 0"),
         (["--vec-env", "subproc"], "invalid choice: 'subproc'"),
         (["--vec-env", "threads"], "invalid choice: 'threads'"),
+        (["-i", "{tmp}/missing.zip"], "--trained-agent: no model file at"),
+        (["-i", "{file}"], "is not a Stable-Baselines3 model file"),
     ],
 )
 def test_user_errors_give_one_clear_line(tmp_path, args, message):

@@ -88,7 +88,7 @@ HARMLESS_ON_RESUME = {"resume", "n_timesteps", "progress", "num_threads", "devic
 # Flags that name config.yml fields one to one.
 CONFIG_FLAGS = (
     "algo", "backend", "env", "seed", "n_envs", "vec_env", "eval_freq", "eval_episodes",
-    "save_freq", "video_freq", "video_length", "tensorboard_log",
+    "save_freq", "video_freq", "video_length", "tensorboard_log", "trained_agent",
 )  # fmt: skip
 
 
@@ -141,6 +141,7 @@ def train_from_args(args: argparse.Namespace, given: set) -> int:
                 video_length=args.video_length,
                 device=args.device,
                 tensorboard_log=args.tensorboard_log,
+                trained_agent=args.trained_agent,
             )
             experiment = Experiment.create(config, args.log_folder, **options)
         result = experiment.run()

@@ -75,6 +75,7 @@ class ExperimentConfig:
     video_length: int = 1000
     device: str = "auto"
     tensorboard_log: str | None = None
+    trained_agent: str | None = None  # a model zip to start from, as the zoo's -i
 
     @classmethod
     def resolve(
@@ -130,6 +131,20 @@ class ExperimentConfig:
         algorithm_class(self.algo, self.backend)
         algorithm_kwargs(self.hyperparams)
         qualified_env_id(self.env)
+        if self.trained_agent:
+            self._check_trained_agent(Path(self.trained_agent))
+
+    def _check_trained_agent(self, path: Path) -> None:
+        from minitaur_env.training.evaluation import infer_algo
+
+        if not path.is_file():
+            raise UsageError(f"--trained-agent: no model file at {path}")
+        algo, backend = infer_algo(path)
+        if (algo, backend) != (self.algo, self.backend):
+            raise UsageError(
+                f"--trained-agent {path} is a {backend} {algo} model and this run trains "
+                f"{self.backend} {self.algo}; pass --algo {algo} --backend {backend}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -354,6 +369,44 @@ class Experiment:
             message = " ".join(str(error).split())
             raise UsageError(f"invalid hyperparameters for {config.algo}: {message}") from error
 
+    def _trained_agent(self) -> BaseAlgorithm:
+        """The model of ``config.trained_agent`` on this run's envs, with the run's
+        hyperparameters (network shape aside) and its replay buffer where one lies beside
+        it, as the zoo's ``--trained-agent`` does."""
+        config = self.config
+        path = Path(config.trained_agent)
+        kwargs = algorithm_kwargs(config.hyperparams)
+        kwargs.pop("policy_kwargs", None)  # the saved network decides its own shape
+        try:
+            model = load_model(
+                self._algorithm(), path, env=self.env, seed=config.seed, device=config.device,
+                tensorboard_log=config.tensorboard_log, **kwargs,
+            )  # fmt: skip
+        except (ValueError, KeyError) as error:  # e.g. the spaces of another env
+            message = " ".join(str(error).split())[:200]
+            raise UsageError(
+                f"--trained-agent {path} does not fit {config.env}: {message}"
+            ) from error
+        model.num_timesteps = 0  # -n counts this run's steps, as in the zoo
+        buffer = path.with_name("replay_buffer.pkl")
+        if config.algo in OFF_POLICY and buffer.is_file():
+            model.load_replay_buffer(buffer)
+        return model
+
+    def _trained_agent_normalizer(self) -> VecNormalize | None:
+        """The trained agent's VecNormalize statistics, to go on adapting from."""
+        from minitaur_env.training.evaluation import normalizer_path_for
+
+        path = normalizer_path_for(Path(self.config.trained_agent))
+        if (path is None) == bool(self.config.normalize):
+            raise UsageError(
+                f"--trained-agent {self.config.trained_agent}: the model was trained "
+                f"{'without' if path is None else 'with'} VecNormalize statistics and this "
+                f"run has normalize={self.config.normalize}; set --hyperparams normalize="
+                f"{'false' if path is None else 'true'}"
+            )
+        return load_pickle(path) if path is not None else None
+
     def _load_newest_checkpoint(self) -> tuple[BaseAlgorithm, VecNormalize | None, int]:
         """The newest checkpoint whose files all load; no env is built for torn ones."""
         algorithm = self._algorithm()
@@ -394,6 +447,9 @@ class Experiment:
             model.set_env(self.env, force_reset=True)
             model.tensorboard_log = config.tensorboard_log
             self.model = model
+        elif config.trained_agent:
+            self._build_envs(config.seed, self._trained_agent_normalizer())
+            self.model = self._trained_agent()
         else:
             self._build_envs(config.seed, None)
             self.model = self._fresh_model()
