@@ -96,13 +96,20 @@ def package_for_hub(
     return folder
 
 
+def _commands(training: dict) -> list[str]:
+    """A provenance's training commands: one ``command`` or a list of ``commands``."""
+    found = training.get("commands") or [training.get("command")]
+    return [command if command.startswith("python") else f"python {command}"
+            for command in found if command]  # fmt: skip
+
+
 def training_command(model: Path) -> str:
     """The command that trained ``model``: a shipped agent's provenance, or its run's."""
     for folder in (model.parent, model.parent.parent):
         run = RunFolder(folder)
         if run.provenance.is_file():
             training = yaml.safe_load(run.provenance.read_text()).get("training") or {}
-            return str(training.get("command", ""))
+            return "\n".join(_commands(training.get("started_from") or {}) + _commands(training))
         if run.command.is_file():
             return run.command.read_text().strip()
     return ""
