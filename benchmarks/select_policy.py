@@ -55,7 +55,9 @@ def judge(
     }
 
 
-def candidates(run: RunFolder, from_steps: int) -> list[Path]:
+def candidates(run: RunFolder, from_steps: int, only: list[int] | None = None) -> list[Path]:
+    if only:
+        return [path for steps, path in run.checkpoints() if steps in only]
     found = [run.best_model, run.final_model]
     found += [path for steps, path in run.checkpoints() if steps >= from_steps]
     return [path for path in found if path.is_file()]
@@ -65,6 +67,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--from-steps", type=int, default=200_000)
+    parser.add_argument("--steps", type=int, nargs="+", help="only these checkpoints")
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--select-seed", type=int, default=5000)
     parser.add_argument("--report-seed", type=int, default=12345)
@@ -85,7 +88,7 @@ def main() -> None:
                 r = per_run[name]
                 print(f"{run}  {name:5s} model on report seeds: {r['mean']:6.2f} ± "
                       f"{r['std']:.2f}, {r['falls']} falls, {r['speed']:.2f} m/s")  # fmt: skip
-        for model in candidates(run, args.from_steps):
+        for model in candidates(run, args.from_steps, args.steps):
             result = judge(model, args.episodes, args.select_seed)
             report["selection"][str(model)] = result
             print(f"  candidate {model}: {result['mean']:6.2f} ± {result['std']:.2f}, "
@@ -100,8 +103,9 @@ def main() -> None:
     )
     finals = [r["final"]["mean"] for r in report["runs"].values() if "final" in r]
     bests = [r["best"]["mean"] for r in report["runs"].values() if "best" in r]
-    print(f"median over {len(bests)} runs: best model {np.median(bests):.2f}, "
-          f"final model {np.median(finals):.2f} (report seeds)")  # fmt: skip
+    if bests and finals:
+        print(f"median over {len(bests)} runs: best model {np.median(bests):.2f}, "
+              f"final model {np.median(finals):.2f} (report seeds)")  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
     if args.ship:
@@ -114,8 +118,9 @@ def run_of(model: Path) -> RunFolder:
 
 def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) -> None:
     run, shipped = run_of(model), RunFolder(args.ship)
-    shipped.path.mkdir(parents=True, exist_ok=True)
     config = run.read_config()
+    started_from = origin_of(config.get("trained_agent"))  # before shipping may overwrite it
+    shipped.path.mkdir(parents=True, exist_ok=True)
     shipped.write_config(config)  # also the zoo's <env>/ files
     shutil.copyfile(model, shipped.zoo_model)
     stats = normalizer_path_for(model)
@@ -155,8 +160,19 @@ def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) 
                                "training runs (see the README)",
         },
     }  # fmt: skip
+    if started_from:
+        provenance["training"]["started_from"] = started_from
     shipped.provenance.write_text(yaml.safe_dump(provenance, sort_keys=False, width=100))
     print(f"shipped: {shipped.zoo_model}")
+
+
+def origin_of(trained_agent: str | None) -> dict | None:
+    """The model a run started from (train.py -i) and, if it was shipped, its training."""
+    if not trained_agent:
+        return None
+    provenance = Path(trained_agent).parent / "provenance.yml"
+    earlier = yaml.safe_load(provenance.read_text()) if provenance.is_file() else {}
+    return {"trained_agent": trained_agent, **earlier.get("training", {})}
 
 
 def saved_steps(model: Path) -> int:
