@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import shutil
 
 import gymnasium as gym
@@ -273,7 +274,9 @@ def test_the_seed_decides_the_run_on_every_backend(tmp_path, algo, backend):
         experiment.run()
         return _policy_weights(experiment.model), experiment.model.replay_buffer.actions[:100]
 
+    before = copy.deepcopy(SMALL_SAC)
     first, again, other = trained(0), trained(0), trained(1)
+    assert before == SMALL_SAC  # the algorithm did not write into the caller's settings
     np.testing.assert_array_equal(first[1], again[1])  # the same exploration
     np.testing.assert_allclose(first[0], again[0], rtol=0, atol=1e-6)  # and updates
     assert not np.allclose(first[1], other[1]) and not np.allclose(first[0], other[0])

@@ -3,6 +3,7 @@ overrides."""
 
 from __future__ import annotations
 
+import copy
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -94,7 +95,7 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """
     from stable_baselines3.common.utils import LinearSchedule
 
-    kwargs = dict(hyperparams)
+    kwargs = copy.deepcopy(hyperparams)  # SBX's TQC writes into policy_kwargs
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
         if not isinstance(value, str):
