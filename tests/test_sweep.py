@@ -36,7 +36,8 @@ def base(n_timesteps: int = 400) -> ExperimentConfig:
 
 
 def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path, capsys):
-    sweep = Sweep(base(), storage=str(tmp_path), name="seeds", seeds=[0, 1])
+    command = "python -m minitaur_env.sweep --seeds 2"
+    sweep = Sweep(base(), storage=str(tmp_path), name="seeds", seeds=[0, 1], command=command)
     assert sweep.run() == []
     shown = [line for line in capsys.readouterr().out.splitlines() if "  eval " in line]
     for seed in (0, 1):  # one line per evaluation of each trial, as train.py prints
@@ -53,6 +54,9 @@ def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path
             assert list(data["timesteps"]) == [200, 400]
             finals.append(data["results"][-1].mean())
         load_policy(run / "best_model.zip", device="cpu")  # evaluate.py reads trials too
+        # what made the run, for its provenance, with the trial's seed
+        (line,) = (run / "command.txt").read_text().splitlines()
+        assert line.startswith(command + "  # trial ") and line.endswith(f"seed {len(finals) - 1}")
     assert row["final_per_seed"] == " ".join(f"{v:.2f}" for v in finals)
     assert row["median"] == pytest.approx(np.median(finals))
     assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"]
@@ -145,6 +149,12 @@ def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
     rows = summarize(tmp_path / "cut")
     assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 3000
     assert list(tmp_path.glob("cut/runs/*/sac/*/progress-resumed-at-*.csv"))  # not restarted
+    commands = [f.read_text().splitlines() for f in tmp_path.glob("cut/runs/*/sac/*/command.txt")]
+    assert len(commands) == 2
+    resume = f"python -m minitaur_env.sweep -f {tmp_path} --name cut --resume"
+    for lines in commands:  # launched by the sweep, then continued by its --resume
+        assert lines[0].startswith("python -m minitaur_env.sweep --env Pendulum-v1")
+    assert any(len(lines) == 2 and lines[1].startswith(resume) for lines in commands)
 
 
 def test_without_the_ray_extra_the_sweep_says_so_in_one_line():

@@ -20,6 +20,7 @@ import dataclasses
 import logging
 import math
 import os
+import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -149,6 +150,10 @@ def _evaluation_lines(total_steps: int) -> Any:
     return EvaluationLines()
 
 
+TRIAL_SETTINGS = ("base", "seed", "runs", "num_threads", "command", "resume_command",
+                  "__trial_index__")  # fmt: skip
+
+
 def run_trial(trial: dict[str, Any]) -> None:
     """Ray Tune's function trainable: one configuration, one seed, one run folder."""
     from ray import tune
@@ -156,11 +161,7 @@ def run_trial(trial: dict[str, Any]) -> None:
     import minitaur_env  # noqa: F401  (registers the ids in this worker)
 
     base = ExperimentConfig.from_dict(trial["base"])
-    sampled = {
-        key: _decode(value)
-        for key, value in trial.items()
-        if key not in ("base", "seed", "runs", "num_threads", "__trial_index__")
-    }
+    sampled = {key: _decode(value) for key, value in trial.items() if key not in TRIAL_SETTINGS}
     seed = trial["seed"] if "seed" in trial else base.seed + int(trial.get("__trial_index__", 0))
     config = dataclasses.replace(
         base,
@@ -191,9 +192,15 @@ def run_trial(trial: dict[str, Any]) -> None:
         earlier = [
             run for run in RunFolder.all(folder, config.algo, config.env) if run.checkpoints()
         ]
+        # command.txt says what made the run, as train.py's runs do: the sweep's command
+        # line, and its --resume for each resumed session.
+        which = f"  # trial {folder.name}, seed {config.seed}"
         if earlier:
+            command = trial.get("resume_command")
+            options["command"] = command + which if command else None
             experiment = Experiment.resume(earlier[-1].path, **options)
         else:
+            options["command"] = trial["command"] + which if trial.get("command") else None
             config.validate()
             experiment = Experiment.create(config, folder, **options)
         result = experiment.run()
@@ -222,6 +229,7 @@ class Sweep:
     gpus_per_trial: float = 0.0
     max_concurrent: int = 0
     address: str | None = None
+    command: str = ""  # how the sweep was launched: each trial's command.txt records it
 
     @property
     def folder(self) -> Path:
@@ -258,6 +266,9 @@ class Sweep:
             "base": self.base.to_dict(),
             "runs": str((self.folder / RUNS).resolve()),
             "num_threads": max(1, math.floor(self.cpus_per_trial)),
+            "command": self.command,
+            "resume_command": f"python -m minitaur_env.sweep -f {self.storage} "
+            f"--name {self.name} --resume",
         }
         search_alg, samples = None, 1
         if self.search is None:
@@ -410,6 +421,7 @@ def run_sweep_from_args(args: Any) -> int:
         gpus_per_trial=args.gpus_per_trial,
         max_concurrent=args.max_concurrent,
         address=args.address,
+        command=shlex.join(["python", "-m", "minitaur_env.sweep", *sys.argv[1:]]),
     )
     failures = sweep.run(resume=args.resume)
     for line in failures:
