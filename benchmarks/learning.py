@@ -21,6 +21,7 @@ import argparse
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +56,9 @@ def plot(groups: list[GroupSummary], path: Path, threshold: float) -> None:
     for group in groups:
         grid = np.unique(np.concatenate([c.steps for c in group.curves]))
         stats = np.array([iqm_with_ci([c.at(int(s)) for c in group.curves], 500) for s in grid])
-        minutes = np.nanmedian([np.interp(grid, c.steps, c.seconds) for c in group.curves], 0)
+        with warnings.catch_warnings():  # steps after every run's last logged episode: NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            minutes = np.nanmedian([np.interp(grid, c.steps, c.seconds) for c in group.curves], 0)
         label = f"{group.name} ({len(group.curves)} seeds)"
         for ax, x in ((by_steps, grid), (by_time, minutes / 60)):
             line = ax.plot(x, stats[:, 0], label=label)
