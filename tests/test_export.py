@@ -1,29 +1,89 @@
-"""Exporting an SBX SAC model to SB3 keeps its policy and critics."""
+"""Exporting an SBX SAC or TQC model to SB3 / sb3-contrib keeps its policy and critics."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import yaml
 
+from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.envs import make_env
-from minitaur_env.training.export import sbx_sac_to_sb3
+from minitaur_env.training.evaluation import load_policy
+from minitaur_env.training.export import sbx_to_sb3
+from tests.scripts import TINY, run_script
 
 
-def test_sbx_sac_exports_to_sb3_with_the_same_actions_and_q_values():
+def _jax_critic_outputs(model, obs: np.ndarray, actions: np.ndarray) -> list[np.ndarray]:
+    policy = model.policy
+    if hasattr(policy, "qf_state"):  # SAC: both Q-networks in one vmapped module
+        return list(np.asarray(policy.qf.apply(policy.qf_state.params, obs, actions)))
+    return [
+        np.asarray(policy.qf.apply(s.params, obs, actions))
+        for s in (policy.qf1_state, policy.qf2_state)
+    ]
+
+
+@pytest.mark.parametrize("algo", ["SAC", "TQC"])
+def test_sbx_model_exports_to_sb3_with_the_same_actions_and_critic_outputs(algo):
     sbx = pytest.importorskip("sbx")
     env = make_env("MinitaurBulletEnv-v0")
-    model = sbx.SAC("MlpPolicy", env, seed=3, policy_kwargs={"net_arch": [64, 64]})
-    exported = sbx_sac_to_sb3(model, env)
+    model = getattr(sbx, algo)("MlpPolicy", env, seed=3, policy_kwargs={"net_arch": [64, 64]})
+    exported = sbx_to_sb3(model, env)
+    assert type(exported).__name__ == algo
     obs = np.random.default_rng(0).normal(size=(32, 28)).astype(np.float32)
     expected, _ = model.predict(obs, deterministic=True)
     actions, _ = exported.predict(obs, deterministic=True)
     np.testing.assert_allclose(actions, expected, atol=1e-5)
     assert np.abs(actions).max() > 1e-3  # not a trivially zero policy
-    q_torch = exported.critic(torch.as_tensor(obs), torch.as_tensor(actions))
-    q_jax = model.policy.qf.apply(model.policy.qf_state.params, obs, actions)
-    for index in range(2):
+    torch_outputs = exported.critic(torch.as_tensor(obs), torch.as_tensor(actions))
+    if algo == "TQC":  # (batch, critic, quantile)
+        torch_outputs = torch_outputs.transpose(0, 1)
+    for torch_output, jax_output in zip(
+        torch_outputs, _jax_critic_outputs(model, obs, actions), strict=True
+    ):
         np.testing.assert_allclose(
-            q_torch[index].detach().numpy().ravel(), np.asarray(q_jax[index]).ravel(), atol=1e-5
+            torch_output.detach().numpy(), jax_output.reshape(32, -1), atol=1e-5
         )
     env.close()
+
+
+def test_other_sbx_algorithms_are_refused_by_name():
+    sbx = pytest.importorskip("sbx")
+    env = make_env("MinitaurBulletEnv-v0")
+    with pytest.raises(ValueError, match="not TD3"):
+        sbx_to_sb3(sbx.TD3("MlpPolicy", env, seed=0, policy_kwargs={"net_arch": [8]}), env)
+    env.close()
+
+
+def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(tmp_path):
+    sbx = pytest.importorskip("sbx")
+    hyperparams = ["learning_starts=50", "buffer_size=5000", "batch_size=32",
+                   "policy_kwargs={net_arch: [16]}"]  # fmt: skip
+    trained = run_script(
+        "train.py", "--algo", "tqc", "--backend", "sbx", "-n", "200", "--hyperparams",
+        *hyperparams, "--eval-freq", "100", "--eval-episodes", "1", "--save-freq", "100", *TINY,
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert trained.returncode == 0, trained.stderr
+    run = tmp_path / "logs" / "tqc" / "MinitaurBulletEnv-v0_1"
+    shipped = tmp_path / "pretrained" / "tqc" / "MinitaurBulletEnv-v0_1"
+    selected = run_script(
+        "benchmarks/select_policy.py", str(run), "--from-steps", "200", "--episodes", "1",
+        "--json", "report.json", "--ship", str(shipped), cwd=tmp_path,
+    )  # fmt: skip
+    assert selected.returncode == 0, selected.stderr
+    chosen = Path(json.loads((tmp_path / "report.json").read_text())["chosen"]["model"])
+    policy = load_policy(shipped / "MinitaurBulletEnv-v0.zip", device="cpu")
+    assert type(policy.model).__module__.startswith("sb3_contrib") and policy.backend == "sb3"
+    assert policy.normalizer is not None  # the run's VecNormalize statistics came along
+    original = load_model(sbx.TQC, tmp_path / chosen if not chosen.is_absolute() else chosen)
+    obs = np.random.default_rng(1).normal(size=(16, 28)).astype(np.float32)
+    expected, _ = original.predict(obs, deterministic=True)
+    actions, _ = policy.model.predict(obs, deterministic=True)
+    np.testing.assert_allclose(actions, expected, atol=1e-5)
+    provenance = yaml.safe_load((shipped / "provenance.yml").read_text())
+    assert provenance["backend"] == "sbx" and "sbx_to_sb3" in provenance["exported"]["how"]

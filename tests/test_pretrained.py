@@ -54,4 +54,4 @@ def test_each_shipped_agent_has_a_hub_folder_that_agrees_with_its_provenance(pat
     for block in (training, training.get("started_from") or {}):
         for command in block.get("commands") or [block.get("command")]:
             if command:
-                assert command.split("train.py", 1)[1].strip() in card_text, command
+                assert command.split("train.py", 1)[-1].strip() in card_text, command
