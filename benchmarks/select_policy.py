@@ -127,21 +127,23 @@ def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) 
     started_from = origin_of(config.get("trained_agent"))  # before shipping may overwrite it
     shipped.path.mkdir(parents=True, exist_ok=True)
     trained_backend = config["backend"]
-    as_trained = None
     if trained_backend == "sbx":  # ship the same weights in SB3's format: no JAX needed
         env = make_env(config["env"], config["env_kwargs"])
         sbx_to_sb3(load_policy(model, device="cpu").model, env).save(shipped.zoo_model)
         env.close()
         config = {**config, "backend": "sb3"}
-        # Torch and XLA round differently (actions agree to 1e-6), and 1000 steps of
-        # walking amplify that: the figures must be the shipped file's own.
-        as_trained, reported = reported, judge(shipped.zoo_model, args.episodes, args.report_seed)
     else:
         shutil.copyfile(model, shipped.zoo_model)
     shipped.write_config(config)  # also the zoo's <env>/ files
     stats = normalizer_path_for(model)
     if stats is not None:
         shutil.copyfile(stats, shipped.zoo_vecnormalize)
+    as_trained = None
+    if trained_backend == "sbx":
+        # Torch and XLA round differently (actions agree to 1e-6), and 1000 steps of
+        # walking amplify that: the figures must be the shipped file's own, judged as
+        # evaluate.py plays it (with the statistics just copied beside it).
+        as_trained, reported = reported, judge(shipped.zoo_model, args.episodes, args.report_seed)
     shutil.copyfile(run.evaluations, shipped.evaluations)
     shutil.copyfile(run.learning_curve, shipped.learning_curve)
     steps = int(saved_steps(model))

@@ -87,3 +87,11 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     np.testing.assert_allclose(actions, expected, atol=1e-5)
     provenance = yaml.safe_load((shipped / "provenance.yml").read_text())
     assert provenance["backend"] == "sbx" and "sbx_to_sb3" in provenance["exported"]["how"]
+    # its figures are evaluate.py's on the shipped file, statistics and all
+    played = run_script(
+        "evaluate.py", "--model", str(shipped / "MinitaurBulletEnv-v0.zip"), "--episodes", "1",
+        "--seed", "12345", "--json", "played.json", cwd=tmp_path,
+    )  # fmt: skip
+    assert played.returncode == 0, played.stderr
+    shown = json.loads((tmp_path / "played.json").read_text())
+    assert provenance["eval_mean_return"] == round(shown["summary"]["return"]["mean"], 3)
