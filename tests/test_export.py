@@ -80,7 +80,7 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     policy = load_policy(shipped / "MinitaurBulletEnv-v0.zip", device="cpu")
     assert type(policy.model).__module__.startswith("sb3_contrib") and policy.backend == "sb3"
     assert policy.normalizer is not None  # the run's VecNormalize statistics came along
-    original = load_model(sbx.TQC, tmp_path / chosen if not chosen.is_absolute() else chosen)
+    original = load_model(sbx.TQC, tmp_path / chosen)  # chosen: relative to tmp_path
     obs = np.random.default_rng(1).normal(size=(16, 28)).astype(np.float32)
     expected, _ = original.predict(obs, deterministic=True)
     actions, _ = policy.model.predict(obs, deterministic=True)
