@@ -140,7 +140,7 @@ def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) 
         shutil.copyfile(stats, shipped.zoo_vecnormalize)
     as_trained = None
     if trained_backend == "sbx":
-        # Torch and XLA round differently (actions agree to 1e-6), and 1000 steps of
+        # Torch and XLA round differently (actions agree to 2e-6), and 1000 steps of
         # walking amplify that: the figures must be the shipped file's own, judged as
         # evaluate.py plays it (with the statistics just copied beside it).
         as_trained, reported = reported, judge(shipped.zoo_model, args.episodes, args.report_seed)
