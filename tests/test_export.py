@@ -73,7 +73,7 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     shipped = tmp_path / "pretrained" / "tqc" / "MinitaurBulletEnv-v0_1"
     selected = run_script(
         "benchmarks/select_policy.py", str(run), "--from-steps", "200", "--episodes", "1",
-        "--json", "report.json", "--ship", str(shipped), cwd=tmp_path,
+        "--select-episodes", "2", "--json", "report.json", "--ship", str(shipped), cwd=tmp_path,
     )  # fmt: skip
     assert selected.returncode == 0, selected.stderr
     chosen = Path(json.loads((tmp_path / "report.json").read_text())["chosen"]["model"])
@@ -87,6 +87,8 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     np.testing.assert_allclose(actions, expected, atol=1e-5)
     provenance = yaml.safe_load((shipped / "provenance.yml").read_text())
     assert provenance["backend"] == "sbx" and "sbx_to_sb3" in provenance["exported"]["how"]
+    assert provenance["selection"]["seeds"] == "5000..5001"  # --select-episodes, not --episodes
+    assert provenance["eval_seeds"] == "12345..12345"
     # its figures are evaluate.py's on the shipped file, statistics and all
     played = run_script(
         "evaluate.py", "--model", str(shipped / "MinitaurBulletEnv-v0.zip"), "--episodes", "1",
