@@ -109,7 +109,11 @@ def training_command(model: Path) -> str:
         run = RunFolder(folder)
         if run.provenance.is_file():
             training = yaml.safe_load(run.provenance.read_text()).get("training") or {}
-            return "\n".join(_commands(training.get("started_from") or {}) + _commands(training))
+            stages = []  # a model trained on from another (train.py -i): oldest run first
+            while training:
+                stages.insert(0, _commands(training))
+                training = training.get("started_from") or {}
+            return "\n".join(command for stage in stages for command in stage)
         if run.command.is_file():
             return run.command.read_text().strip()
     return ""
