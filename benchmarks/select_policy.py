@@ -2,11 +2,11 @@
 
 Each candidate (the best model, the final model and the checkpoints from ``--from-steps``
 on) plays ``--select-episodes`` (default ``--episodes``) deterministic episodes on
-selection seeds (default 5000..), which
-neither training (seeds 0.., eval env seeds offset by 10000) nor the README's report seeds
-(12345..) use. The candidate with the highest mean among those with the fewest falls is
-selected, and only then played on the report seeds. Per run, the best and final models
-are also reported on the report seeds: the learning target's figure.
+selection seeds (default 5000..), which neither training (seeds 0.., eval env seeds offset
+by 10000) nor the README's report seeds (12345..) use. The candidate with the highest mean
+among those with the fewest falls is selected, and only then played on the report seeds.
+Per run, the best and final models are also reported on the report seeds: the learning
+target's figure.
 
     python benchmarks/select_policy.py logs/screen/sac/MinitaurBulletEnv-v0_{3,4,5} \\
         --from-steps 200000 --json benchmarks/results/sac-selection.json \\
@@ -81,7 +81,10 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     parser.add_argument("--ship", type=Path, help="write the chosen model here (a zoo run folder)")
     args = parser.parse_args()
-    args.select_episodes = args.select_episodes or args.episodes
+    if args.select_episodes is None:
+        args.select_episodes = args.episodes
+    if min(args.episodes, args.select_episodes) < 1:
+        parser.error("--episodes and --select-episodes must be at least 1")
     if args.ship:  # before the hours of judging: provenance needs each run's commands
         for run_path in args.runs:
             if not RunFolder.existing(run_path).command.is_file():

@@ -97,3 +97,14 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     assert played.returncode == 0, played.stderr
     shown = json.loads((tmp_path / "played.json").read_text())
     assert provenance["eval_mean_return"] == round(shown["summary"]["return"]["mean"], 3)
+
+
+def test_select_policy_refuses_zero_selection_episodes_in_one_line(tmp_path):
+    refused = run_script(
+        "benchmarks/select_policy.py", str(tmp_path), "--select-episodes", "0",
+        "--json", "report.json", cwd=tmp_path,
+    )  # fmt: skip
+    assert refused.returncode == 2
+    last_line = refused.stderr.strip().splitlines()[-1]
+    assert last_line.endswith("--episodes and --select-episodes must be at least 1")
+    assert not (tmp_path / "report.json").exists()
