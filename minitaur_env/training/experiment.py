@@ -44,6 +44,7 @@ from minitaur_env.training.envs import (
     resolve_vec_env,
 )
 from minitaur_env.training.hyperparams import RUN_KEYS, algorithm_kwargs, load_hyperparams
+from minitaur_env.training.policies import resolve_policy
 from minitaur_env.training.run_folder import RunFolder, load_pickle
 from minitaur_env.training.vec_env import EnvWorkerError
 
@@ -357,7 +358,7 @@ class Experiment:
         config = self.config
         try:
             return self._algorithm()(
-                config.policy,
+                resolve_policy(config.algo, config.policy),
                 self.env,
                 seed=config.seed,
                 device=config.device,

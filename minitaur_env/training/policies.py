@@ -1,0 +1,134 @@
+"""SAC policies with the stabilizers the SAC ablation measures (README, "Stabilizing SAC").
+
+``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with three opt-in changes, each a policy
+keyword so that SB3's own ``SAC`` class trains it unchanged:
+
+- ``critic_layer_norm``: LayerNorm after every hidden linear layer of the critics (DroQ,
+  SimBa, BRO), which keeps Q-targets from running away at high learning rates;
+- ``max_grad_norm``: gradient-norm clipping before every optimizer step (SB3's SAC has
+  none; DLR-RM/stable-baselines3#2123);
+- ``actor_ema``: an exponential moving average of the actor's weights, updated after
+  every actor step, that acts whenever the policy is deterministic: evaluation, saving
+  and ``evaluate.py`` see the average while exploration keeps the live actor.
+
+They hook into the optimizers (``register_step_pre_hook``/``register_step_post_hook``)
+rather than into ``SAC.train``, so a saved model rebuilds them on load.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import torch
+from stable_baselines3.common.policies import ContinuousCritic
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.sac.policies import Actor, SACPolicy
+from torch import nn
+
+POLICY_NAME = "StabilizedMlpPolicy"
+
+
+class LayerNormCritic(ContinuousCritic):
+    """SB3's twin critics with LayerNorm between each hidden linear layer and its ReLU."""
+
+    def __init__(
+        self,
+        observation_space: Any,
+        action_space: Any,
+        net_arch: list[int],
+        features_extractor: BaseFeaturesExtractor,
+        features_dim: int,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(
+            observation_space, action_space, net_arch, features_extractor, features_dim,
+            activation_fn, **kwargs,
+        )  # fmt: skip
+        action_dim = self.action_space.shape[0]
+        self.q_networks = []
+        for index in range(self.n_critics):
+            layers = create_mlp(
+                features_dim + action_dim, 1, net_arch, activation_fn,
+                post_linear_modules=[nn.LayerNorm],
+            )  # fmt: skip
+            q_net = nn.Sequential(*layers)
+            self.add_module(f"qf{index}", q_net)  # replaces SB3's plain one of that name
+            self.q_networks.append(q_net)
+
+
+class StabilizedSACPolicy(SACPolicy):
+    """``SACPolicy`` plus ``critic_layer_norm``, ``max_grad_norm`` and ``actor_ema``."""
+
+    def __init__(
+        self,
+        *args: Any,
+        critic_layer_norm: bool = False,
+        max_grad_norm: float | None = None,
+        actor_ema: float | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if max_grad_norm is not None and not max_grad_norm > 0:
+            raise ValueError(f"max_grad_norm must be > 0, got {max_grad_norm}")
+        if actor_ema is not None and not 0 < actor_ema < 1:
+            raise ValueError(f"actor_ema is a decay in (0, 1), got {actor_ema}")
+        self.critic_layer_norm = critic_layer_norm
+        self.max_grad_norm = max_grad_norm
+        self.actor_ema = actor_ema
+        self.averaged_actor: Actor | None = None
+        super().__init__(*args, **kwargs)
+
+    def _build(self, lr_schedule: Any) -> None:
+        super()._build(lr_schedule)
+        if self.max_grad_norm is not None:
+            for optimizer in (self.actor.optimizer, self.critic.optimizer):
+                optimizer.register_step_pre_hook(self._clip_gradients)
+        if self.actor_ema is not None:
+            self.averaged_actor = copy.deepcopy(self.actor)
+            self.averaged_actor.optimizer = None
+            self.averaged_actor.requires_grad_(False)
+            self.averaged_actor.set_training_mode(False)
+            self.actor.optimizer.register_step_post_hook(self._update_averaged_actor)
+
+    def make_critic(
+        self, features_extractor: BaseFeaturesExtractor | None = None
+    ) -> ContinuousCritic:
+        if not self.critic_layer_norm:
+            return super().make_critic(features_extractor)
+        kwargs = self._update_features_extractor(self.critic_kwargs, features_extractor)
+        return LayerNormCritic(**kwargs).to(self.device)
+
+    def _clip_gradients(self, optimizer: torch.optim.Optimizer, *_: Any) -> None:
+        params = [p for group in optimizer.param_groups for p in group["params"]]
+        nn.utils.clip_grad_norm_(params, self.max_grad_norm)
+
+    @torch.no_grad()
+    def _update_averaged_actor(self, *_: Any) -> None:
+        averaged = list(self.averaged_actor.parameters())
+        torch._foreach_lerp_(averaged, list(self.actor.parameters()), 1.0 - self.actor_ema)
+
+    def _predict(self, observation: Any, deterministic: bool = False) -> torch.Tensor:
+        if deterministic and self.averaged_actor is not None:
+            return self.averaged_actor(observation, deterministic=True)
+        return self.actor(observation, deterministic)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            critic_layer_norm=self.critic_layer_norm,
+            max_grad_norm=self.max_grad_norm,
+            actor_ema=self.actor_ema,
+        )
+        return data
+
+
+# Policy names a hyperparameter entry may give besides SB3's own, per algorithm.
+POLICIES: dict[str, dict[str, type]] = {"sac": {POLICY_NAME: StabilizedSACPolicy}}
+
+
+def resolve_policy(algo: str, name: Any) -> Any:
+    """The class for one of this package's policy names; anything else as given."""
+    if isinstance(name, str):
+        return POLICIES.get(algo, {}).get(name, name)
+    return name

@@ -1,0 +1,112 @@
+"""StabilizedMlpPolicy: LayerNorm critics, gradient clipping and the averaged actor."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import SAC
+
+from minitaur_env.training import Experiment, ExperimentConfig, UsageError
+from minitaur_env.training.algorithms import load_model
+from minitaur_env.training.policies import POLICY_NAME, StabilizedSACPolicy
+
+SMALL = {"learning_starts": 30, "batch_size": 16, "buffer_size": 1000}
+
+
+def sac(**policy_kwargs) -> SAC:
+    kwargs = {"net_arch": [32, 32], **policy_kwargs}
+    return SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=0, device="cpu",
+               policy_kwargs=kwargs, **SMALL)  # fmt: skip
+
+
+def critic_output(model: SAC) -> torch.Tensor:
+    obs = torch.ones(4, 3)
+    actions = torch.zeros(4, 1)
+    return model.policy.critic(obs, actions)[0]
+
+
+@pytest.mark.parametrize("layer_norm", [True, False])
+def test_layer_norm_critics_ignore_the_scale_of_a_hidden_layer(layer_norm):
+    model = sac(critic_layer_norm=layer_norm)
+    norms = [m for m in model.policy.critic.modules() if isinstance(m, torch.nn.LayerNorm)]
+    assert len(norms) == (4 if layer_norm else 0)  # two hidden layers, two critics
+    assert len(list(model.policy.critic_target.modules())) == len(
+        list(model.policy.critic.modules())
+    )
+    before = critic_output(model)
+    with torch.no_grad():
+        first = next(m for m in model.policy.critic.qf0 if isinstance(m, torch.nn.Linear))
+        first.weight.mul_(10.0)
+        first.bias.mul_(10.0)
+    after = critic_output(model)
+    # LayerNorm undoes the scale; a plain MLP passes it on (the negative control).
+    assert torch.allclose(before, after, atol=1e-5) == layer_norm
+
+
+def test_gradients_are_clipped_before_every_step():
+    seen: list[float] = []
+
+    def record(optimizer, *_):
+        grads = [p.grad for g in optimizer.param_groups for p in g["params"] if p.grad is not None]
+        seen.append(float(torch.linalg.vector_norm(torch.stack([g.norm() for g in grads]))))
+
+    for clip in (1e-3, None):
+        model = sac(max_grad_norm=clip)
+        for optimizer in (model.policy.actor.optimizer, model.policy.critic.optimizer):
+            optimizer.register_step_pre_hook(record)  # runs after the policy's own hook
+        seen.clear()
+        model.learn(60)
+        assert len(seen) == 2 * 30  # one actor and one critic step per update
+        if clip:
+            assert max(seen) <= clip * 1.001
+        else:
+            assert max(seen) > 1e-2  # without clipping the same run has larger gradients
+
+
+def test_the_averaged_actor_acts_deterministically_and_survives_saving(tmp_path):
+    decay = 0.9
+    model = sac(actor_ema=decay)
+    live = model.policy.actor
+    expected = [p.detach().clone() for p in live.parameters()]
+
+    def follow(*_):
+        for average, param in zip(expected, live.parameters(), strict=True):
+            average.mul_(decay).add_(param.detach(), alpha=1 - decay)
+
+    live.optimizer.register_step_post_hook(follow)
+    model.learn(80)
+    averaged = list(model.policy.averaged_actor.parameters())
+    for mine, theirs in zip(expected, averaged, strict=True):
+        torch.testing.assert_close(theirs, mine)
+
+    obs = np.array([0.3, -0.2, 0.5], np.float32)
+    with torch.no_grad():
+        tensor = torch.as_tensor(obs[None])
+        from_average = model.policy.averaged_actor(tensor, deterministic=True).numpy()
+        from_live = live(tensor, deterministic=True).numpy()
+    action = model.predict(obs, deterministic=True)[0]
+    np.testing.assert_allclose(action, model.policy.unscale_action(from_average)[0], rtol=1e-6)
+    assert not np.allclose(from_average, from_live)  # the average is not the live actor
+
+    model.save(tmp_path / "model.zip")
+    loaded = load_model(SAC, tmp_path / "model.zip", device="cpu")
+    assert isinstance(loaded.policy, StabilizedSACPolicy) and loaded.policy.actor_ema == decay
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], action)
+
+
+def test_the_policy_name_works_in_a_run_and_bad_values_are_one_line(tmp_path):
+    def config(**policy_kwargs):
+        return ExperimentConfig.resolve(
+            "sac", "Pendulum-v1", n_timesteps=60, eval_freq=0, save_freq=0, vec_env="dummy",
+            device="cpu",
+            hyperparams={**SMALL, "policy": POLICY_NAME,
+                         "policy_kwargs": {"net_arch": [8], **policy_kwargs}},
+        )  # fmt: skip
+
+    result = Experiment.create(config(critic_layer_norm=True), tmp_path, verbose=0).run()
+    assert result.status == "completed"
+    assert isinstance(load_model(SAC, result.run.final_model).policy, StabilizedSACPolicy)
+    with pytest.raises(UsageError, match=r"actor_ema is a decay in \(0, 1\), got 1.5"):
+        Experiment.create(config(actor_ema=1.5), tmp_path, verbose=0).run()
