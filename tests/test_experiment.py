@@ -24,6 +24,7 @@ from minitaur_env.training import experiment as experiment_module
 from minitaur_env.training.aggregate import wall_clock_at
 from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.callbacks import save_checked_checkpoint
+from minitaur_env.training.hyperparams import load_hyperparams
 from minitaur_env.training.run_folder import load_pickle
 
 SMALL_SAC = {
@@ -67,7 +68,7 @@ if "ShortPendulum-v0" not in gym.registry:
     )  # fmt: skip
 
 
-def pendulum(tmp_path, **settings) -> Experiment:
+def pendulum(tmp_path, callbacks=(), **settings) -> Experiment:
     config = ExperimentConfig.resolve(
         "sac",
         settings.pop("env", "Pendulum-v1"),
@@ -79,7 +80,7 @@ def pendulum(tmp_path, **settings) -> Experiment:
         device="cpu",
         **settings,
     )
-    return Experiment.create(config, tmp_path / "logs", verbose=0)
+    return Experiment.create(config, tmp_path / "logs", verbose=0, callbacks=callbacks)
 
 
 def test_a_run_from_python_writes_its_folder(tmp_path):
@@ -339,3 +340,54 @@ def test_a_trained_agent_that_does_not_fit_is_one_line(tmp_path):
         )  # fmt: skip
     with pytest.raises(UsageError, match=r"does not fit MountainCarContinuous-v0: .*space"):
         pendulum(tmp_path, env="MountainCarContinuous-v0", trained_agent=str(run.zoo_model)).run()
+
+
+class RecordsLearningRate(BaseCallback):
+    """The actor's learning rate at every env step, and a Ctrl-C at ``interrupt_at``."""
+
+    def __init__(self, interrupt_at: int | None = None) -> None:
+        super().__init__()
+        self.interrupt_at = interrupt_at
+        self.rates: dict[int, float] = {}
+
+    def _on_step(self) -> bool:
+        self.rates[self.num_timesteps] = self.model.actor.optimizer.param_groups[0]["lr"]
+        if self.num_timesteps == self.interrupt_at:
+            raise KeyboardInterrupt
+        return True
+
+
+def test_resume_continues_a_decaying_learning_rate_instead_of_restarting_it(tmp_path):
+    decaying = {"hyperparams": {"learning_rate": "lin_1e-3"}, "n_timesteps": 200}
+    whole = RecordsLearningRate()
+    pendulum(tmp_path / "whole", **decaying, callbacks=[whole]).run()
+
+    first = RecordsLearningRate(interrupt_at=100)
+    interrupted = pendulum(tmp_path / "cut", **decaying, callbacks=[first]).run()
+    assert interrupted.status == "interrupted" and interrupted.num_timesteps == 100
+    second = RecordsLearningRate()
+    Experiment.resume(interrupted.run.path, verbose=0, callbacks=[second]).run()
+    after = sorted(s for s in second.rates if s > 101)  # the first step's lr is set by train()
+    assert after and after[-1] == 200
+    np.testing.assert_allclose([second.rates[s] for s in after], [whole.rates[s] for s in after])
+    assert second.rates[after[0]] < 0.5e-3  # a restarted schedule would be back near 1e-3
+
+    # -n extends the schedule to the new length: at step s of 300, 1e-3 * (1 - s / 300).
+    extended = RecordsLearningRate()
+    Experiment.resume(interrupted.run.path, n_timesteps=300, verbose=0, callbacks=[extended]).run()
+    steps = sorted(s for s in extended.rates if s > 201)
+    expected = [1e-3 * (1 - (s - 1) / 300) for s in steps]  # set after step s - 1
+    np.testing.assert_allclose([extended.rates[s] for s in steps], expected, rtol=1e-6)
+
+
+@pytest.mark.parametrize("algo", ["sac", "tqc", "crossq"])
+def test_the_minitaur_entries_build_and_train(tmp_path, algo):
+    config = ExperimentConfig.resolve(
+        algo, "MinitaurBulletEnv-v0", hyperparams={"learning_starts": 32}, n_timesteps=64,
+        env_kwargs={"max_episode_steps": 40}, eval_freq=0, save_freq=0, vec_env="dummy",
+        device="cpu",
+    )  # fmt: skip
+    entry = load_hyperparams(algo, "MinitaurBulletEnv-v0")
+    assert entry["normalize"] is True and entry["n_timesteps"] <= 300_000
+    result = Experiment.create(config, tmp_path, verbose=0).run()
+    assert result.status == "completed" and result.num_timesteps == 64
