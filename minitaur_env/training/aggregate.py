@@ -61,6 +61,24 @@ class RunCurve:
             return None
         return int(self.steps[hit[0]]), float(self.seconds[hit[0]])
 
+    def after_reaching(self, milestone: float) -> tuple[float, float] | None:
+        """(lowest evaluation, largest drop below an earlier peak) from the first evaluation
+        at or above ``milestone`` on: how far a run falls back once it got there."""
+        hit = np.nonzero(self.returns >= milestone)[0]
+        if not len(hit):
+            return None
+        later = self.returns[hit[0] :]
+        return float(later.min()), float((np.maximum.accumulate(later) - later).max())
+
+    @property
+    def steps_per_second(self) -> float:
+        """Env steps per second of training wall-clock, evaluations included, up to the
+        last evaluation that the monitor logs' clock covers."""
+        timed = np.nonzero(np.isfinite(self.seconds) & (self.seconds > 0))[0]
+        if not len(timed):
+            return np.nan
+        return float(self.steps[timed[-1]] / self.seconds[timed[-1]])
+
 
 def wall_clock_at(run: RunFolder, steps: np.ndarray) -> np.ndarray:
     """Seconds of training when the run had made ``steps`` env steps (monitor logs).

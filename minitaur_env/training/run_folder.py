@@ -144,6 +144,12 @@ class RunFolder:
 
     @property
     def env_name(self) -> str:
+        """The env id's name: from config.yml, so that a renamed copy (``seed0/``) still
+        finds its files; from the folder's name before the config is written."""
+        if self.config.is_file():
+            env = self.read_config().get("env")
+            if isinstance(env, str):
+                return env_folder_name(env)
         return self.path.name.rsplit("_", 1)[0]
 
     @property

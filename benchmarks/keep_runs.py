@@ -1,0 +1,61 @@
+"""Copy finished runs into ``benchmarks/results/<name>/seed<S>/``, small enough to commit.
+
+Keeps what anyone needs to judge a run again and to redraw its curves: the final model in
+the zoo's layout (``<env>.zip``, ``<env>/vecnormalize.pkl`` and the zoo's settings), the
+run's ``config.yml``, ``command.txt``, ``evaluations.npz``, monitor files and, for a sweep
+trial, ``trial.yml``. Checkpoints, replay buffers and the best model stay behind.
+
+    python benchmarks/keep_runs.py logs/sweeps/NAME/runs/* --into benchmarks/results/NAME
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+from minitaur_env.training.run_folder import RunFolder
+
+
+def run_folders(path: Path) -> list[RunFolder]:
+    """The run folder at ``path``, or those of a sweep trial folder (``<algo>/<env>_N``)."""
+    if (path / "config.yml").is_file():
+        return [RunFolder(path)]
+    return [RunFolder(config.parent) for config in sorted(path.glob("*/*/config.yml"))]
+
+
+def keep(run: RunFolder, destination: Path) -> None:
+    if not run.final_model.is_file() or run.final_model != run.zoo_model:
+        sys.exit(f"keep_runs.py: {run} has no final model {run.zoo_model.name}; unfinished?")
+    if destination.exists():
+        shutil.rmtree(destination)
+    destination.mkdir(parents=True)
+    for source in (run.config, run.command, run.evaluations, run.zoo_model):
+        shutil.copy2(source, destination / source.name)
+    kept = RunFolder(destination)  # its env name comes from the copied config.yml
+    shutil.copytree(run.zoo_dir, kept.zoo_dir)
+    shutil.copytree(run.monitor_dir, kept.monitor_dir)
+    trial = run.path.parents[1] / "trial.yml"  # <trial>/<algo>/<env>_N
+    if trial.is_file():
+        shutil.copy2(trial, kept.path / trial.name)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="run folders or sweep trial folders")
+    parser.add_argument("--into", type=Path, required=True, help="e.g. benchmarks/results/NAME")
+    args = parser.parse_args()
+    found = [run for path in args.runs for run in run_folders(path)]
+    if not found:
+        sys.exit(f"keep_runs.py: no run folder (config.yml) under {' '.join(map(str, args.runs))}")
+    seeds = [int(run.read_config()["seed"]) for run in found]
+    if len(set(seeds)) != len(seeds):
+        sys.exit(f"keep_runs.py: two runs share a seed ({sorted(seeds)}); keep them apart")
+    for run, seed in zip(found, seeds, strict=True):
+        keep(run, args.into / f"seed{seed}")
+        print(f"{run} -> {args.into / f'seed{seed}'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,174 @@
+"""The Minitaur benchmark table and the SAC ablation table, from kept run folders.
+
+Each row is a configuration over seeds; each seed a run folder kept by
+``benchmarks/keep_runs.py`` (final model in the zoo's layout, evaluations, monitors).
+Per row it prints:
+
+- the final models (the model at ``n_timesteps``, no checkpoint picked) on ``--episodes``
+  deterministic episodes from ``--report-seed`` (12345.., seeds no training, evaluation or
+  selection uses): mean per seed, median, falls per seed, IQM over seeds with its 95 %
+  stratified bootstrap CI (rliable);
+- from the runs' periodic evaluations: the lowest evaluation and the largest drop below an
+  earlier peak once 15 was first reached, steps and minutes to 5 and to 15 (median over
+  the seeds that got there), and env steps/s (evaluations included).
+
+Judging a final model plays its episodes once and stores the result beside it
+(``final_model_report.json``, keyed by the model file's SHA-256); ``--rejudge`` plays
+them again. ``--plot`` redraws figure 1 (IQM curves against env steps, left, and
+wall-clock, right).
+
+    python benchmarks/minitaur_table.py                      # the benchmark table
+    python benchmarks/minitaur_table.py --table ablation     # the SAC ablation
+    python benchmarks/minitaur_table.py --row "mine=logs/kept/seed*" --plot mine.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from glob import glob
+from pathlib import Path
+
+import numpy as np
+from learning import plot  # benchmarks/ is on the path of a script run from it
+from select_policy import judge
+
+from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
+from minitaur_env.training.run_folder import RunFolder
+
+RESULTS = Path(__file__).resolve().parent / "results"
+TABLES = {
+    "benchmark": {
+        "SAC, default entry": "sac-default/seed*",
+        "TQC (SBX), default entry": "tqc-sweep/seed*",
+        "CrossQ, default entry": "crossq/seed*",
+        "PPO, default entry": "ppo-sweep/seed*",
+    },
+    "ablation": {
+        "SAC, previous default (constant 3e-4)": "sac-default/seed*",
+        "learning_rate lin_7.3e-4": "sac-ablation/lin7e-4/seed*",
+    },
+}
+REPORT = "final_model_report.json"
+NONE = "-"
+
+
+def final_report(run: RunFolder, episodes: int, seed: int, rejudge: bool) -> dict | None:
+    """The final model's result on the report episodes, or None if none was kept."""
+    model = run.final_model
+    cache = run.path / REPORT
+    if not model.is_file():  # a run whose model was not kept may have a recorded result
+        return json.loads(cache.read_text()) if cache.is_file() else None
+    digest = hashlib.sha256(model.read_bytes()).hexdigest()
+    key = {"model_sha256": digest, "episodes": episodes, "report_seed": seed}
+    if cache.is_file() and not rejudge:
+        stored = json.loads(cache.read_text())
+        if all(stored.get(k) == v for k, v in key.items()):
+            return stored
+    result = {**key, **judge(model, episodes, seed)}
+    cache.write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def cell(values: list[float], digits: int = 2) -> str:
+    return " ".join(NONE if not np.isfinite(v) else f"{v:.{digits}f}" for v in values)
+
+
+def median(values: list[float], scale: float = 1.0, digits: int = 1) -> str:
+    finite = [v for v in values if np.isfinite(v)]
+    return f"{np.median(finite) * scale:.{digits}f}" if finite else NONE
+
+
+def kilo(text: str) -> str:
+    return text if text == NONE else f"{text}k"
+
+
+def row(label: str, runs: list[RunFolder], args: argparse.Namespace) -> tuple[str, GroupSummary]:
+    curves = [RunCurve.read(run) for run in runs]
+    reports = [final_report(run, args.episodes, args.report_seed, args.rejudge) for run in runs]
+    means = [r["mean"] if r else np.nan for r in reports]
+    falls = [float(r["falls"]) if r else np.nan for r in reports]
+    iqm, low, high = iqm_with_ci(means)
+    after = [c.after_reaching(15.0) for c in curves]
+    to = {m: [c.reached(m) for c in curves] for m in (5.0, 15.0)}
+    reached = {m: f"{sum(h is not None for h in hits)}/{len(hits)}" for m, hits in to.items()}
+
+    def steps_to(m: float) -> list[float]:
+        return [h[0] if h else np.nan for h in to[m]]
+
+    def minutes_to(m: float) -> list[float]:
+        return [h[1] / 60 if h else np.nan for h in to[m]]
+
+    if any(r and "source" in r for r in reports):
+        label += " (final models judged earlier, not kept)"
+    text = " | ".join([
+        label,
+        str(len(runs)),
+        str(int(max(c.steps[-1] for c in curves)) // 1000) + "k",
+        cell(means), median(means, digits=2),
+        cell(falls, 0),
+        NONE if not np.isfinite(iqm) else f"{iqm:.2f} ({low:.2f} to {high:.2f})",
+        cell([a[0] if a else np.nan for a in after]),
+        cell([a[1] if a else np.nan for a in after]),
+        f"{kilo(median(steps_to(5.0), 1e-3, 0))} ({reached[5.0]})",
+        f"{kilo(median(steps_to(15.0), 1e-3, 0))} ({reached[15.0]})",
+        median(minutes_to(5.0)), median(minutes_to(15.0)),
+        median([c.steps_per_second for c in curves], digits=0),
+    ])  # fmt: skip
+    return f"| {text} |", GroupSummary(label, curves, [])
+
+
+HEADER = (
+    "| configuration | seeds | steps | final models: mean per seed | median | falls per seed "
+    "| IQM (95 % CI) | lowest eval after 15 | largest drop after 15 | steps to 5 "
+    "| steps to 15 | min to 5 | min to 15 | env steps/s |\n" + "|---" * 14 + "|"
+)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--table", choices=list(TABLES), default="benchmark")
+    parser.add_argument(
+        "--row", action="append", metavar="LABEL=GLOB",
+        help="a row from these run folders instead of the table's own (repeatable)",
+    )  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--report-seed", type=int, default=12345)
+    parser.add_argument("--rejudge", action="store_true", help="play the final models again")
+    parser.add_argument("--plot", type=Path, help="write the IQM curves (figure 1) to this PNG")
+    args = parser.parse_args()
+    specs: list[tuple[str, str]] = []
+    for text in args.row or []:
+        label, sep, pattern = text.partition("=")
+        if not sep or not label or not pattern:
+            parser.error(f"--row expects LABEL=GLOB, got {text!r}")
+        specs.append((label, pattern))
+    if not specs:
+        specs = [(label, str(RESULTS / p)) for label, p in TABLES[args.table].items()]
+
+    lines, groups, missing = [HEADER], [], []
+    for label, pattern in specs:
+        runs = [
+            RunFolder(Path(p)) for p in sorted(glob(pattern)) if Path(p, "config.yml").is_file()
+        ]
+        if not runs:
+            missing.append(f"{label} ({pattern})")
+            continue
+        line, group = row(label, runs, args)
+        lines.append(line)
+        groups.append(group)
+    print("\n".join(lines))
+    if missing:
+        print(f"\nno run folders yet for: {'; '.join(missing)}", file=sys.stderr)
+    print(
+        f"\nfinal models: {args.episodes} deterministic episodes from seed {args.report_seed}; "
+        "'-': no final model kept, or the milestone never reached"
+    )
+    if args.plot and groups:
+        plot(groups, args.plot, 15.0)
+
+
+if __name__ == "__main__":
+    main()

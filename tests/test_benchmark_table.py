@@ -1,0 +1,95 @@
+"""benchmarks/keep_runs.py and benchmarks/minitaur_table.py on a tiny real run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from minitaur_env.training.aggregate import RunCurve
+from minitaur_env.training.run_folder import RunFolder
+from tests.scripts import TINY, error_lines, run_script
+
+FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("runs")
+    result = run_script(
+        "train.py", "-n", "160", *FAST_SAC, "--seed", "3", "--eval-freq", "80",
+        "--eval-episodes", "1", "--save-freq", "80", *TINY, cwd=root,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
+
+
+def test_keep_runs_keeps_what_judging_again_needs_and_nothing_bulky(finished_run, tmp_path):
+    kept = run_script(
+        "benchmarks/keep_runs.py", str(finished_run), "--into", "results/tiny", cwd=tmp_path
+    )
+    assert kept.returncode == 0, kept.stderr
+    folder = tmp_path / "results" / "tiny" / "seed3"
+    names = sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
+    assert "MinitaurBulletEnv-v0.zip" in names
+    assert "MinitaurBulletEnv-v0/vecnormalize.pkl" in names
+    assert {"config.yml", "command.txt", "evaluations.npz"} <= set(names)
+    assert any(n.startswith("monitor/") for n in names)
+    assert not any(n.startswith("checkpoints/") or n == "best_model.zip" for n in names)
+    run = RunFolder(folder)  # renamed, it still finds its model by the env in config.yml
+    assert run.final_model == folder / "MinitaurBulletEnv-v0.zip"
+
+
+def test_keep_runs_refuses_an_unfinished_run_in_one_line(finished_run, tmp_path):
+    unfinished = tmp_path / "logs" / "MinitaurBulletEnv-v0_1"
+    unfinished.mkdir(parents=True)
+    (unfinished / "config.yml").write_text((finished_run / "config.yml").read_text())
+    refused = run_script(
+        "benchmarks/keep_runs.py", str(unfinished), "--into", "results/x", cwd=tmp_path
+    )
+    assert refused.returncode == 1
+    assert error_lines(refused) == [
+        f"keep_runs.py: {unfinished} has no final model MinitaurBulletEnv-v0.zip; unfinished?"
+    ]
+    assert not (tmp_path / "results").exists()
+
+
+def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, tmp_path):
+    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/tiny", cwd=tmp_path)
+    report = tmp_path / "r" / "tiny" / "seed3" / "final_model_report.json"
+    row = ["--row", f"tiny={tmp_path}/r/tiny/seed*", "--episodes", "2"]
+
+    first = run_script("benchmarks/minitaur_table.py", *row, cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    line = next(line for line in first.stdout.splitlines() if line.startswith("| tiny"))
+    judged = json.loads(report.read_text())
+    assert judged["episodes"] == 2 and judged["report_seed"] == 12345
+    assert f"| {judged['mean']:.2f} |" in line  # median of one seed
+    # The stored result is reused while the model is the same file...
+    report.write_text(json.dumps({**judged, "mean": 123.0}))
+    cached = run_script("benchmarks/minitaur_table.py", *row, cwd=tmp_path)
+    assert "| 123.00 |" in cached.stdout
+    # ...and played again for --rejudge (or another model, seed or episode count).
+    again = run_script("benchmarks/minitaur_table.py", *row, "--rejudge", cwd=tmp_path)
+    assert "123.00" not in again.stdout
+    assert json.loads(report.read_text())["mean"] == pytest.approx(judged["mean"])
+
+
+def test_a_row_needs_label_and_folders(tmp_path):
+    refused = run_script("benchmarks/minitaur_table.py", "--row", "no-glob", cwd=tmp_path)
+    assert refused.returncode == 2
+    assert error_lines(refused)[-1].endswith("--row expects LABEL=GLOB, got 'no-glob'")
+
+
+def test_how_far_a_run_falls_back_after_first_reaching_a_return():
+    curve = RunCurve(
+        RunFolder("unused"),
+        steps=np.array([10, 20, 30, 40, 50, 60]),
+        returns=np.array([1.0, 16.0, 12.0, 18.0, 9.0, 17.0]),
+        seconds=np.array([5.0, 10.0, 15.0, 20.0, 25.0, np.nan]),
+    )
+    assert curve.after_reaching(15.0) == (9.0, 9.0)  # lowest 9; 18 -> 9 the largest drop
+    assert curve.after_reaching(17.5) == (9.0, 9.0)
+    assert curve.after_reaching(20.0) is None
+    assert curve.steps_per_second == 50 / 25.0  # the last evaluation the clock covers
