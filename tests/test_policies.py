@@ -110,3 +110,14 @@ def test_the_policy_name_works_in_a_run_and_bad_values_are_one_line(tmp_path):
     assert isinstance(load_model(SAC, result.run.final_model).policy, StabilizedSACPolicy)
     with pytest.raises(UsageError, match=r"actor_ema is a decay in \(0, 1\), got 1.5"):
         Experiment.create(config(actor_ema=1.5), tmp_path, verbose=0).run()
+
+
+def test_the_torch_policy_name_on_sbx_is_one_line_not_a_traceback(tmp_path):
+    pytest.importorskip("sbx")
+    config = ExperimentConfig.resolve(
+        "sac", "Pendulum-v1", n_timesteps=60, eval_freq=0, save_freq=0, vec_env="dummy",
+        backend="sbx", hyperparams={**SMALL, "policy": POLICY_NAME},
+    )  # fmt: skip
+    with pytest.raises(UsageError, match="a PyTorch policy for --backend sb3"):
+        Experiment.create(config, tmp_path, verbose=0).run()
+    assert not any(tmp_path.rglob("config.yml"))  # the run that never started is gone

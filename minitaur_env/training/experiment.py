@@ -358,7 +358,7 @@ class Experiment:
         config = self.config
         try:
             return self._algorithm()(
-                resolve_policy(config.algo, config.policy),
+                resolve_policy(config.algo, config.policy, config.backend),
                 self.env,
                 seed=config.seed,
                 device=config.device,

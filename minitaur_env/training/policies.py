@@ -26,6 +26,8 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.sac.policies import Actor, SACPolicy
 from torch import nn
 
+from minitaur_env.training import UsageError
+
 POLICY_NAME = "StabilizedMlpPolicy"
 
 
@@ -127,8 +129,13 @@ class StabilizedSACPolicy(SACPolicy):
 POLICIES: dict[str, dict[str, type]] = {"sac": {POLICY_NAME: StabilizedSACPolicy}}
 
 
-def resolve_policy(algo: str, name: Any) -> Any:
+def resolve_policy(algo: str, name: Any, backend: str = "sb3") -> Any:
     """The class for one of this package's policy names; anything else as given."""
-    if isinstance(name, str):
-        return POLICIES.get(algo, {}).get(name, name)
-    return name
+    if not isinstance(name, str) or name not in POLICIES.get(algo, {}):
+        return name
+    if backend != "sb3":
+        raise UsageError(
+            f"policy {name} is a PyTorch policy for --backend sb3; SBX's SAC has its own "
+            "LayerNorm critics: policy=MlpPolicy 'policy_kwargs={layer_norm: true}'"
+        )
+    return POLICIES[algo][name]
