@@ -49,6 +49,7 @@ TABLES = {
     "ablation": {
         "SAC, previous default (constant 3e-4)": "sac-default/seed*",
         "learning_rate lin_7.3e-4": "sac-ablation/lin7e-4/seed*",
+        "lin_7.3e-4 + LayerNorm critics": "sac-ablation/lin7e-4-ln/seed*",
     },
 }
 REPORT = "final_model_report.json"
@@ -101,10 +102,11 @@ def row(label: str, runs: list[RunFolder], args: argparse.Namespace) -> tuple[st
     def minutes_to(m: float) -> list[float]:
         return [h[1] / 60 if h else np.nan for h in to[m]]
 
+    shown = label
     if any(r and "source" in r for r in reports):
-        label += " (final models judged earlier, not kept)"
+        shown += " (final models judged earlier, not kept)"
     text = " | ".join([
-        label,
+        shown,
         str(len(runs)),
         str(int(max(c.steps[-1] for c in curves)) // 1000) + "k",
         cell(means), median(means, digits=2),
