@@ -10,6 +10,7 @@ from stable_baselines3 import SAC
 
 from minitaur_env.training import Experiment, ExperimentConfig, UsageError
 from minitaur_env.training.algorithms import load_model
+from minitaur_env.training.evaluation import infer_algo
 from minitaur_env.training.policies import POLICY_NAME, StabilizedSACPolicy
 
 SMALL = {"learning_starts": 30, "batch_size": 16, "buffer_size": 1000}
@@ -94,6 +95,7 @@ def test_the_averaged_actor_acts_deterministically_and_survives_saving(tmp_path)
     loaded = load_model(SAC, tmp_path / "model.zip", device="cpu")
     assert isinstance(loaded.policy, StabilizedSACPolicy) and loaded.policy.actor_ema == decay
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], action)
+    assert infer_algo(tmp_path / "model.zip") == ("sac", "sb3")  # evaluate.py without --algo
 
 
 def test_the_policy_name_works_in_a_run_and_bad_values_are_one_line(tmp_path):

@@ -18,7 +18,7 @@ import yaml
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
-from minitaur_env.training import UsageError
+from minitaur_env.training import UsageError, policies
 from minitaur_env.training.algorithms import ALGORITHMS, algorithm_class, load_model
 from minitaur_env.training.run_folder import RunFolder, load_pickle
 
@@ -57,6 +57,8 @@ def infer_algo(path: Path) -> tuple[str, str]:
     for name in ALGORITHMS:
         if f".{name}." in module or module.endswith(f".{name}"):
             return name, backend
+    if module == policies.__name__ and len(policies.POLICIES) == 1:  # our own, for SAC
+        return next(iter(policies.POLICIES)), backend
     # PPO and A2C share SB3's common ActorCriticPolicy; only PPO clips.
     if module.endswith("common.policies"):
         return ("ppo" if "clip_range" in data else "a2c"), backend
