@@ -36,6 +36,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add_experiment_arguments(parser)
     add = parser.add_argument
     add("--seeds", nargs="+", type=int, default=[3], help="N seeds (0..N-1), or a list: 0 4 7")
+    add("--first-seed", type=int, default=0, help="with --seeds N: seeds K..K+N-1, e.g. one seed")
     add("--search", metavar="FILE.yml", help="search this YAML space with Optuna TPE")
     add("--trials", type=int, default=8, help="configurations a --search samples (default: 8)")
     add("--scheduler", default="none", choices=["none", "asha"], help="asha: stop bad trials")

@@ -167,3 +167,18 @@ def test_without_the_ray_extra_the_sweep_says_so_in_one_line():
         "sweep: error: ray is not installed; sweeps need the ray extra: "
         "pip install 'minitaur-env[ray]'"
     ]
+
+
+def test_seeds_are_a_count_from_first_seed_or_a_list():
+    from minitaur_env.training.sweeps import seed_list
+
+    assert seed_list([3]) == [0, 1, 2]
+    assert seed_list([1], first_seed=2) == [2]  # one seed that is not 0: a row's third seed
+    assert seed_list([0, 4, 7]) == [0, 4, 7]
+    for values, first, message in (
+        ([0, 4], 2, "--first-seed goes with a count"),
+        ([0], 0, "a count N >= 1"),
+        ([1, 1], 0, "distinct seeds"),
+    ):
+        with pytest.raises(UsageError, match=message):
+            seed_list(values, first)

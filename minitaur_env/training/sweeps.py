@@ -395,6 +395,19 @@ def summarize(folder: str | Path, milestones: Sequence[float] | None = None) -> 
     return rows
 
 
+def seed_list(values: list[int], first_seed: int = 0) -> list[int]:
+    """``--seeds N`` (with ``--first-seed K``: K..K+N-1) or ``--seeds 0 4 7``."""
+    if len(values) == 1:
+        seeds = list(range(first_seed, first_seed + values[0]))
+    elif first_seed:
+        raise UsageError("--first-seed goes with a count (--seeds N), not a list of seeds")
+    else:
+        seeds = list(values)
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise UsageError("--seeds takes a count N >= 1, or a list of distinct seeds")
+    return seeds
+
+
 def run_sweep_from_args(args: Any) -> int:
     """What ``python -m minitaur_env.sweep`` does with its flags; returns the exit code."""
     from minitaur_env.training.aggregate import format_rows
@@ -405,9 +418,7 @@ def run_sweep_from_args(args: Any) -> int:
         print(format_rows(rows))
         print(f"summary: {Path(args.summarize) / 'summary.csv'}")
         return 0
-    seeds = list(range(args.seeds[0])) if len(args.seeds) == 1 else list(args.seeds)
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise UsageError("--seeds takes a count N >= 1, or a list of distinct seeds")
+    seeds = seed_list(args.seeds, args.first_seed)
     base = config_from_args(args, save_freq=args.save_freq, vec_env="dummy", device="cpu")
     sweep = Sweep(
         base=base,
