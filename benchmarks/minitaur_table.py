@@ -37,6 +37,7 @@ from select_policy import judge
 
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.video import atomic_path
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TABLES = {
@@ -69,7 +70,8 @@ def final_report(run: RunFolder, episodes: int, seed: int, rejudge: bool) -> dic
         if all(stored.get(k) == v for k, v in key.items()):
             return stored
     result = {**key, **judge(model, episodes, seed)}
-    cache.write_text(json.dumps(result, indent=1) + "\n")
+    with atomic_path(cache) as temp:  # a stopped judge leaves no half-written result
+        temp.write_text(json.dumps(result, indent=1) + "\n")
     return result
 
 
