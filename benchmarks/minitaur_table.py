@@ -160,6 +160,9 @@ def main() -> None:
         if not runs:
             missing.append(f"{label} ({pattern})")
             continue
+        for run in runs:
+            if not run.evaluations.is_file():
+                sys.exit(f"minitaur_table.py: {run} has no evaluations.npz; not a finished run")
         line, group = row(label, runs, args)
         lines.append(line)
         groups.append(group)

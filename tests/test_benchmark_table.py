@@ -76,6 +76,18 @@ def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, t
     assert json.loads(report.read_text())["mean"] == pytest.approx(judged["mean"])
 
 
+def test_a_run_without_evaluations_is_one_line(finished_run, tmp_path):
+    (tmp_path / "r" / "seed0").mkdir(parents=True)
+    (tmp_path / "r" / "seed0" / "config.yml").write_text((finished_run / "config.yml").read_text())
+    refused = run_script(
+        "benchmarks/minitaur_table.py", "--row", f"x={tmp_path}/r/seed*", cwd=tmp_path
+    )
+    assert refused.returncode == 1
+    assert error_lines(refused) == [
+        f"minitaur_table.py: {tmp_path}/r/seed0 has no evaluations.npz; not a finished run"
+    ]
+
+
 def test_a_row_needs_label_and_folders(tmp_path):
     refused = run_script("benchmarks/minitaur_table.py", "--row", "no-glob", cwd=tmp_path)
     assert refused.returncode == 2
