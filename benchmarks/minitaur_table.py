@@ -54,13 +54,19 @@ TABLES = {
     },
 }
 REPORT = "final_model_report.json"
+LIVE_REPORT = "final_model_report_live_actor.json"
+# A row glob ending in this judges an actor_ema run's live actor: the model the same run
+# ends with without the average, since the average does not change training.
+LIVE = "#live-actor"
 NONE = "-"
 
 
-def final_report(run: RunFolder, episodes: int, seed: int, rejudge: bool) -> dict | None:
+def final_report(
+    run: RunFolder, episodes: int, seed: int, rejudge: bool, live_actor: bool = False
+) -> dict | None:
     """The final model's result on the report episodes, or None if none was kept."""
     model = run.final_model
-    cache = run.path / REPORT
+    cache = run.path / (LIVE_REPORT if live_actor else REPORT)
     if not model.is_file():  # a run whose model was not kept may have a recorded result
         return json.loads(cache.read_text()) if cache.is_file() else None
     digest = hashlib.sha256(model.read_bytes()).hexdigest()
@@ -69,7 +75,7 @@ def final_report(run: RunFolder, episodes: int, seed: int, rejudge: bool) -> dic
         stored = json.loads(cache.read_text())
         if all(stored.get(k) == v for k, v in key.items()):
             return stored
-    result = {**key, **judge(model, episodes, seed)}
+    result = {**key, **judge(model, episodes, seed, live_actor=live_actor)}
     with atomic_path(cache) as temp:  # a stopped judge leaves no half-written result
         temp.write_text(json.dumps(result, indent=1) + "\n")
     return result
@@ -88,9 +94,13 @@ def kilo(text: str) -> str:
     return text if text == NONE else f"{text}k"
 
 
-def row(label: str, runs: list[RunFolder], args: argparse.Namespace) -> tuple[str, GroupSummary]:
+def row(
+    label: str, runs: list[RunFolder], args: argparse.Namespace, live_actor: bool = False
+) -> tuple[str, GroupSummary]:
     curves = [RunCurve.read(run) for run in runs]
-    reports = [final_report(run, args.episodes, args.report_seed, args.rejudge) for run in runs]
+    reports = [
+        final_report(run, args.episodes, args.report_seed, args.rejudge, live_actor) for run in runs
+    ]
     means = [r["mean"] if r else np.nan for r in reports]
     falls = [float(r["falls"]) if r else np.nan for r in reports]
     iqm, low, high = iqm_with_ci(means)
@@ -105,6 +115,8 @@ def row(label: str, runs: list[RunFolder], args: argparse.Namespace) -> tuple[st
         return [h[1] / 60 if h else np.nan for h in to[m]]
 
     shown = label
+    if live_actor:  # the periodic evaluations played the average, not this actor
+        shown += " (evaluation columns: the averaged actor's)"
     if any(r and "source" in r for r in reports):
         shown += " (final models judged earlier, not kept)"
     text = " | ".join([
@@ -136,7 +148,8 @@ def main() -> None:
     parser.add_argument("--table", choices=list(TABLES), default="benchmark")
     parser.add_argument(
         "--row", action="append", metavar="LABEL=GLOB",
-        help="a row from these run folders instead of the table's own (repeatable)",
+        help="a row from these run folders instead of the table's own (repeatable); a GLOB "
+        f"ending in {LIVE} judges the final models' live actor of an actor_ema run",
     )  # fmt: skip
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--report-seed", type=int, default=12345)
@@ -153,7 +166,8 @@ def main() -> None:
         specs = [(label, str(RESULTS / p)) for label, p in TABLES[args.table].items()]
 
     lines, groups, missing = [HEADER], [], []
-    for label, pattern in specs:
+    for label, spec in specs:
+        pattern, live_actor = spec.removesuffix(LIVE), spec.endswith(LIVE)
         runs = [
             RunFolder(Path(p)) for p in sorted(glob(pattern)) if Path(p, "config.yml").is_file()
         ]
@@ -163,7 +177,7 @@ def main() -> None:
         for run in runs:
             if not run.evaluations.is_file():
                 sys.exit(f"minitaur_table.py: {run} has no evaluations.npz; not a finished run")
-        line, group = row(label, runs, args)
+        line, group = row(label, runs, args, live_actor)
         lines.append(line)
         groups.append(group)
     print("\n".join(lines))

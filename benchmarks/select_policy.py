@@ -40,10 +40,24 @@ from minitaur_env.training.run_folder import RunFolder
 
 
 def judge(
-    model: Path, episodes: int, seed: int, env_id: str | None = None, env_kwargs: dict | None = None
+    model: Path,
+    episodes: int,
+    seed: int,
+    env_id: str | None = None,
+    env_kwargs: dict | None = None,
+    live_actor: bool = False,
 ) -> dict[str, float]:
-    """Mean, std, falls and speed of ``episodes`` deterministic episodes from ``seed``."""
+    """Mean, std, falls and speed of ``episodes`` deterministic episodes from ``seed``.
+
+    ``live_actor``: a model trained with ``actor_ema`` acts with its live actor instead of
+    the average, which is the model the same run would have ended with without the
+    average (the average does not change training).
+    """
     policy = load_policy(model, device="cpu")
+    if live_actor:
+        if getattr(policy.model.policy, "averaged_actor", None) is None:
+            raise SystemExit(f"{model} has no averaged actor (actor_ema) to leave out")
+        policy.model.policy.averaged_actor = None
     env = make_env(env_id or policy.env_id or "MinitaurBulletEnv-v0", env_kwargs or {})
     try:
         summary = summarize(run_episodes(policy, env, episodes, seed))

@@ -105,3 +105,39 @@ def test_how_far_a_run_falls_back_after_first_reaching_a_return():
     assert curve.after_reaching(17.5) == (9.0, 9.0)
     assert curve.after_reaching(20.0) is None
     assert curve.steps_per_second == 50 / 25.0  # the last evaluation the clock covers
+
+
+def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_run):
+    trained = run_script(
+        "train.py", "-n", "160", *FAST_SAC, "policy=StabilizedMlpPolicy",
+        "policy_kwargs={net_arch: [64, 64], actor_ema: 0.999}", "--seed", "3",
+        "--eval-freq", "80", "--eval-episodes", "1", *TINY, cwd=tmp_path,
+    )  # fmt: skip
+    assert trained.returncode == 0, trained.stderr
+    run = tmp_path / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
+    run_script("benchmarks/keep_runs.py", str(run), "--into", "r/ema", cwd=tmp_path)
+    kept = tmp_path / "r" / "ema" / "seed3"
+    args = ["--episodes", "2"]
+    average = run_script("benchmarks/minitaur_table.py", "--row", f"a={kept}", *args, cwd=tmp_path)
+    live = run_script(
+        "benchmarks/minitaur_table.py", "--row", f"l={kept}#live-actor", *args, cwd=tmp_path
+    )
+    assert average.returncode == 0 and live.returncode == 0, live.stderr
+    assert "averaged actor's" in live.stdout and "averaged actor's" not in average.stdout
+    judged = {
+        name: json.loads((kept / name).read_text())
+        for name in ("final_model_report.json", "final_model_report_live_actor.json")
+    }
+    # The same file, judged with two different actors (0.999 after ~100 updates keeps the
+    # average near the initial weights, far from the live actor).
+    assert len({r["model_sha256"] for r in judged.values()}) == 1
+    assert len({r["mean"] for r in judged.values()}) == 2
+
+    # A run trained without the average has no live actor to tell apart: one line.
+    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/plain", cwd=tmp_path)
+    refused = run_script(
+        "benchmarks/minitaur_table.py", "--row", f"p={tmp_path}/r/plain/seed3#live-actor",
+        *args, cwd=tmp_path,
+    )  # fmt: skip
+    assert refused.returncode == 1
+    assert error_lines(refused)[-1].endswith("has no averaged actor (actor_ema) to leave out")

@@ -98,6 +98,30 @@ def test_the_averaged_actor_acts_deterministically_and_survives_saving(tmp_path)
     assert infer_algo(tmp_path / "model.zip") == ("sac", "sb3")  # evaluate.py without --algo
 
 
+@pytest.mark.parametrize("use_sde", [False, True])
+def test_the_average_leaves_training_unchanged(use_sde):
+    # The SAC ablation judges an actor_ema run's live actor as the run without the
+    # average: that holds only if averaging draws nothing from the random stream.
+    def trained(**policy_kwargs) -> SAC:
+        model = SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=0, device="cpu",
+                    use_sde=use_sde, policy_kwargs={"net_arch": [32, 32], **policy_kwargs},
+                    **SMALL)  # fmt: skip
+        model.learn(80)
+        return model
+
+    plain, averaged = trained(), trained(actor_ema=0.9)
+    for mine, theirs in zip(
+        plain.policy.actor.parameters(), averaged.policy.actor.parameters(), strict=True
+    ):
+        torch.testing.assert_close(theirs, mine, rtol=0, atol=0)
+    # The negative control: another seed's live actor differs.
+    other = SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=1, device="cpu",
+                use_sde=use_sde, policy_kwargs={"net_arch": [32, 32]}, **SMALL)  # fmt: skip
+    other.learn(80)
+    first = next(other.policy.actor.parameters())
+    assert not torch.equal(first, next(plain.policy.actor.parameters()))
+
+
 def test_the_policy_name_works_in_a_run_and_bad_values_are_one_line(tmp_path):
     def config(**policy_kwargs):
         return ExperimentConfig.resolve(

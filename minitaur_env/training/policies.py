@@ -17,7 +17,6 @@ rather than into ``SAC.train``, so a saved model rebuilds them on load.
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import torch
@@ -87,8 +86,12 @@ class StabilizedSACPolicy(SACPolicy):
             for optimizer in (self.actor.optimizer, self.critic.optimizer):
                 optimizer.register_step_pre_hook(self._clip_gradients)
         if self.actor_ema is not None:
-            self.averaged_actor = copy.deepcopy(self.actor)
-            self.averaged_actor.optimizer = None
+            # A fresh actor loaded with the live one's weights: deepcopy fails on a gSDE
+            # actor's exploration matrices, and the forked RNG keeps the run's random
+            # stream (and so its training) the same as without the average.
+            with torch.random.fork_rng(devices=[]):
+                self.averaged_actor = self.make_actor()
+            self.averaged_actor.load_state_dict(self.actor.state_dict())
             self.averaged_actor.requires_grad_(False)
             self.averaged_actor.set_training_mode(False)
             self.actor.optimizer.register_step_post_hook(self._update_averaged_actor)
