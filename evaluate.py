@@ -10,13 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from minitaur_env.training import missing_dependency
-
-try:
-    from minitaur_env.training.algorithms import ALGORITHMS
-    from minitaur_env.training.cli import OneLineErrorParser
-except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
-    sys.exit(missing_dependency("evaluate.py", error))
+from minitaur_env.training import ALGORITHM_NAMES, OneLineErrorParser, missing_dependency
 
 DEFAULT_ENV = "MinitaurBulletEnv-v0"
 
@@ -29,7 +23,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     which = parser.add_argument_group("which policy")
     which.add_argument("--model", type=Path, help="a model .zip (overrides the options below)")
     which.add_argument("-f", "--log-folder", help="root of the run folders, e.g. logs")
-    which.add_argument("--algo", choices=list(ALGORITHMS), help="algorithm (default: from model)")
+    which.add_argument("--algo", choices=ALGORITHM_NAMES, help="algorithm (default: from model)")
     which.add_argument("--env", help=f"env id (default: the model's, else {DEFAULT_ENV})")
     which.add_argument("--exp-id", type=int, default=0, help="run number N; 0: the latest")
     load = which.add_mutually_exclusive_group()
@@ -60,6 +54,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--gif", action="store_true", help="also write a small GIF beside the mp4")
     add("--gui", action="store_true", help="watch --video-episodes episodes in the PyBullet GUI")
     add("--device", default="cpu", help="torch device (default: cpu)")
+    add(
+        "--trust-pickle",
+        action="store_true",
+        help="also load pickles: cloudpickled entries of the zip, a vecnormalize.pkl without "
+        "its vecnormalize.json, SBX models. A pickle can run code from the file: only "
+        "files you trust (by default none is unpickled)",
+    )
     args = parser.parse_args(argv)
     if args.episodes < 0:
         parser.error("--episodes must be >= 0")
@@ -74,7 +75,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    from minitaur_env.training.evaluation import evaluate_from_args
+    try:
+        from minitaur_env.training.evaluation import evaluate_from_args
+    except ModuleNotFoundError as error:  # the env-only install: no yaml, imageio, ...
+        sys.exit(missing_dependency("evaluate.py", error))
 
     return evaluate_from_args(args, DEFAULT_ENV)
 

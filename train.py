@@ -14,11 +14,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from minitaur_env.training import missing_dependency
+from minitaur_env.training import OneLineErrorParser, missing_dependency
 
 try:
     from minitaur_env.training.cli import (
-        OneLineErrorParser,
         add_experiment_arguments,
         given_flags,
         suppress_defaults,
@@ -65,7 +64,18 @@ def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:
         metavar="MODEL_ZIP",
         help="start from this model (and its VecNormalize statistics), e.g. a shipped one",
     )
-    add("--resume", metavar="RUN_DIR", help="continue this run from its newest checkpoint")
+    add(
+        "--trust-pickle",
+        action="store_true",
+        help="with -i: also load the model's pickled entries, VecNormalize pickle and "
+        "replay buffer (a pickle can run code from the file: only files you trust)",
+    )
+    add(
+        "--resume",
+        metavar="RUN_DIR",
+        help="continue this run from its newest checkpoint (reads the run folder's own "
+        "pickles: resume only run folders you trust)",
+    )
     add("-v", "--verbose", type=int, default=0, help="1: SB3's logger tables too (default: 0)")
     return suppress_defaults(parser) if without_defaults else parser
 

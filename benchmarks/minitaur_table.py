@@ -35,11 +35,16 @@ import numpy as np
 from learning import plot  # benchmarks/ is on the path of a script run from it
 from select_policy import judge
 
+from minitaur_env.training import UsageError
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.video import atomic_path
 
 RESULTS = Path(__file__).resolve().parent / "results"
+LIVE_REPORT = "final_model_report_live_actor.json"
+# A row glob ending in this judges an actor_ema run's live actor: the model the same run
+# ends with without the average, since the average does not change training.
+LIVE = "#live-actor"
 TABLES = {
     "benchmark": {
         "SAC, default entry": "sac-default/seed*",
@@ -51,18 +56,21 @@ TABLES = {
         "SAC, previous default (constant 3e-4)": "sac-default/seed*",
         "learning_rate lin_7.3e-4": "sac-ablation/lin7e-4/seed*",
         "lin_7.3e-4 + LayerNorm critics": "sac-ablation/lin7e-4-ln/seed*",
+        "gSDE (log_std_init -3), actor EMA 0.999": "sac-ablation/gsde-ema/seed*",
+        "gSDE (log_std_init -3), live actor": "sac-ablation/gsde-ema/seed*" + LIVE,
     },
 }
 REPORT = "final_model_report.json"
-LIVE_REPORT = "final_model_report_live_actor.json"
-# A row glob ending in this judges an actor_ema run's live actor: the model the same run
-# ends with without the average, since the average does not change training.
-LIVE = "#live-actor"
 NONE = "-"
 
 
 def final_report(
-    run: RunFolder, episodes: int, seed: int, rejudge: bool, live_actor: bool = False
+    run: RunFolder,
+    episodes: int,
+    seed: int,
+    rejudge: bool,
+    live_actor: bool = False,
+    trust: bool = False,
 ) -> dict | None:
     """The final model's result on the report episodes, or None if none was kept."""
     model = run.final_model
@@ -75,7 +83,7 @@ def final_report(
         stored = json.loads(cache.read_text())
         if all(stored.get(k) == v for k, v in key.items()):
             return stored
-    result = {**key, **judge(model, episodes, seed, live_actor=live_actor)}
+    result = {**key, **judge(model, episodes, seed, live_actor=live_actor, trust_pickle=trust)}
     with atomic_path(cache) as temp:  # a stopped judge leaves no half-written result
         temp.write_text(json.dumps(result, indent=1) + "\n")
     return result
@@ -99,7 +107,10 @@ def row(
 ) -> tuple[str, GroupSummary]:
     curves = [RunCurve.read(run) for run in runs]
     reports = [
-        final_report(run, args.episodes, args.report_seed, args.rejudge, live_actor) for run in runs
+        final_report(
+            run, args.episodes, args.report_seed, args.rejudge, live_actor, args.trust_pickle
+        )
+        for run in runs
     ]
     means = [r["mean"] if r else np.nan for r in reports]
     falls = [float(r["falls"]) if r else np.nan for r in reports]
@@ -154,6 +165,10 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--report-seed", type=int, default=12345)
     parser.add_argument("--rejudge", action="store_true", help="play the final models again")
+    parser.add_argument(
+        "--trust-pickle", action="store_true",
+        help="load pickles (statistics without their JSON): run folders you trust only",
+    )  # fmt: skip
     parser.add_argument("--plot", type=Path, help="write the IQM curves (figure 1) to this PNG")
     args = parser.parse_args()
     specs: list[tuple[str, str]] = []
@@ -192,4 +207,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except UsageError as error:  # e.g. a pickle that needs --trust-pickle
+        sys.exit(f"minitaur_table.py: error: {error}")

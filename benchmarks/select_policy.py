@@ -22,11 +22,13 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from minitaur_env.training import UsageError
 from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.evaluation import (
@@ -36,7 +38,9 @@ from minitaur_env.training.evaluation import (
     summarize,
 )
 from minitaur_env.training.export import sbx_to_sb3
+from minitaur_env.training.onnx_export import export_onnx
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.safe_load import copy_statistics
 
 
 def judge(
@@ -46,6 +50,7 @@ def judge(
     env_id: str | None = None,
     env_kwargs: dict | None = None,
     live_actor: bool = False,
+    trust_pickle: bool = False,
 ) -> dict[str, float]:
     """Mean, std, falls and speed of ``episodes`` deterministic episodes from ``seed``.
 
@@ -53,7 +58,7 @@ def judge(
     the average, which is the model the same run would have ended with without the
     average (the average does not change training).
     """
-    policy = load_policy(model, device="cpu")
+    policy = load_policy(model, device="cpu", trust_pickle=trust_pickle)
     if live_actor:
         if getattr(policy.model.policy, "averaged_actor", None) is None:
             raise SystemExit(f"{model} has no averaged actor (actor_ema) to leave out")
@@ -94,6 +99,10 @@ def main() -> None:
     parser.add_argument("--report-seed", type=int, default=12345)
     parser.add_argument("--json", type=Path)
     parser.add_argument("--ship", type=Path, help="write the chosen model here (a zoo run folder)")
+    parser.add_argument(
+        "--trust-pickle", action="store_true",
+        help="load pickles (SBX models, statistics without their JSON): trusted runs only",
+    )  # fmt: skip
     args = parser.parse_args()
     if args.select_episodes is None:
         args.select_episodes = args.episodes
@@ -111,23 +120,24 @@ def main() -> None:
         f"{args.select_episodes} deterministic episodes on selection seeds "
         f"{args.select_seed}.., {args.episodes} on report seeds {args.report_seed}.."
     )
+    trust = {"trust_pickle": args.trust_pickle}
     for run_path in args.runs:
         run = RunFolder.existing(run_path)
         per_run = report["runs"][str(run)] = {}
         for name, model in (("best", run.best_model), ("final", run.final_model)):
             if model.is_file():
-                per_run[name] = judge(model, args.episodes, args.report_seed)
+                per_run[name] = judge(model, args.episodes, args.report_seed, **trust)
                 r = per_run[name]
                 print(f"{run}  {name:5s} model on report seeds: {r['mean']:6.2f} ± "
                       f"{r['std']:.2f}, {r['falls']} falls, {r['speed']:.2f} m/s")  # fmt: skip
         for model in candidates(run, args.from_steps, args.steps):
-            result = judge(model, args.select_episodes, args.select_seed)
+            result = judge(model, args.select_episodes, args.select_seed, **trust)
             report["selection"][str(model)] = result
             print(f"  candidate {model}: {result['mean']:6.2f} ± {result['std']:.2f}, "
                   f"{result['falls']} falls (selection seeds)")  # fmt: skip
     chosen = max(report["selection"], key=lambda m: (-report["selection"][m]["falls"],
                                                      report["selection"][m]["mean"]))  # fmt: skip
-    reported = judge(Path(chosen), args.episodes, args.report_seed)
+    reported = judge(Path(chosen), args.episodes, args.report_seed, **trust)
     report["chosen"] = {"model": chosen, "report": reported}
     print(
         f"chosen: {chosen}: {reported['mean']:.2f} ± {reported['std']:.2f}, "
@@ -156,15 +166,17 @@ def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) 
     trained_backend = config["backend"]
     if trained_backend == "sbx":  # ship the same weights in SB3's format: no JAX needed
         env = make_env(config["env"], config["env_kwargs"])
-        sbx_to_sb3(load_policy(model, device="cpu").model, env).save(shipped.zoo_model)
+        trained = load_policy(model, device="cpu", trust_pickle=args.trust_pickle).model
+        sbx_to_sb3(trained, env).save(shipped.zoo_model)
         env.close()
         config = {**config, "backend": "sb3"}
     else:
         shutil.copyfile(model, shipped.zoo_model)
     shipped.write_config(config)  # also the zoo's <env>/ files
     stats = normalizer_path_for(model)
-    if stats is not None:
-        shutil.copyfile(stats, shipped.zoo_vecnormalize)
+    if stats is not None:  # the pickle for the zoo, the JSON for safe loading
+        copy_statistics(stats, shipped.zoo_vecnormalize, args.trust_pickle)
+    onnx = export_onnx(shipped.zoo_model, shipped.onnx_policy)  # refuses if it disagrees
     as_trained = None
     if trained_backend == "sbx":
         # Torch and XLA round differently (actions agree to 2e-6), and 1000 steps of
@@ -215,6 +227,10 @@ def ship(model: Path, reported: dict, selected: dict, args: argparse.Namespace) 
                 "std_return": round(as_trained["std"], 3), "falls": as_trained["falls"],
             },
         }  # fmt: skip
+    provenance["onnx"] = {
+        "file": shipped.onnx_policy.name,
+        "max_abs_action_difference_from_predict": float(f"{onnx['max_abs_difference']:.2e}"),
+    }
     if started_from:
         provenance["training"]["started_from"] = started_from
     shipped.provenance.write_text(yaml.safe_dump(provenance, sort_keys=False, width=100))
@@ -240,4 +256,7 @@ def saved_steps(model: Path) -> int:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except UsageError as error:  # e.g. a pickle that needs --trust-pickle
+        sys.exit(f"select_policy.py: error: {error}")

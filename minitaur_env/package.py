@@ -15,8 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from minitaur_env.training import UsageError
-from minitaur_env.training.cli import OneLineErrorParser
+from minitaur_env.training import OneLineErrorParser, UsageError
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,13 +31,19 @@ def main(argv: list[str] | None = None) -> int:
     add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
     add("--seed", type=int, default=12345, help="seed of episode 0 (default: 12345)")
     add("--video-steps", type=int, default=1000, help="env steps in replay.mp4 (default: 1000)")
+    add(
+        "--trust-pickle",
+        action="store_true",
+        help="load pickles in or beside the model (they can run code: trusted files only)",
+    )
     args = parser.parse_args(argv)
     try:
         from minitaur_env.training.hub import package_for_hub
 
         folder = package_for_hub(
-            args.run_or_model, args.out, args.env, args.episodes, args.seed, args.video_steps
-        )
+            args.run_or_model, args.out, args.env, args.episodes, args.seed, args.video_steps,
+            args.trust_pickle,
+        )  # fmt: skip
     except UsageError as error:
         print(f"minitaur_env.package: error: {error}", file=sys.stderr)
         return 2

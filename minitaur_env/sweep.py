@@ -18,11 +18,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from minitaur_env.training import missing_dependency
+from minitaur_env.training import OneLineErrorParser, UsageError, missing_dependency
 
 try:
-    from minitaur_env.training import UsageError
-    from minitaur_env.training.cli import OneLineErrorParser, add_experiment_arguments
+    from minitaur_env.training.cli import add_experiment_arguments
 except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
     sys.exit(missing_dependency("python -m minitaur_env.sweep", error))
 

@@ -135,8 +135,8 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
     assert result.returncode == 0, result.stderr[-2000:]
     folder = workdir / "hub" / "sac-MinitaurBulletEnv-v0"
     assert sorted(p.name for p in folder.iterdir()) == [
-        "README.md", "config.yml", "env_kwargs.yml", "replay.mp4", "results.json",
-        "sac-MinitaurBulletEnv-v0.zip", "vec_normalize.pkl",
+        "README.md", "config.yml", "env_kwargs.yml", "policy.onnx", "replay.mp4",
+        "results.json", "sac-MinitaurBulletEnv-v0.zip", "vec_normalize.json", "vec_normalize.pkl",
     ]  # fmt: skip
     assert (folder / "sac-MinitaurBulletEnv-v0.zip").read_bytes() == best_model.read_bytes()
     results = json.loads((folder / "results.json").read_text())

@@ -308,7 +308,8 @@ def test_a_trained_agent_starts_a_new_run_with_its_weights_statistics_and_buffer
         experiment.close()
         return experiment
 
-    fine_tuned, fresh = started(trained_agent=str(first.zoo_model)), started()
+    fine_tuned, fresh = started(trained_agent=str(first.zoo_model), trust_pickle=True), started()
+    without_buffer = started(trained_agent=str(first.zoo_model))  # the buffer is a pickle
     weights = _policy_weights(trained)
     np.testing.assert_array_equal(_policy_weights(fine_tuned.model), weights)
     assert not np.allclose(_policy_weights(fresh.model), weights)  # control: a fresh start
@@ -318,6 +319,11 @@ def test_a_trained_agent_starts_a_new_run_with_its_weights_statistics_and_buffer
     stored = load_pickle(first.replay_buffer(200)).size()
     assert stored > 100 and fine_tuned.model.replay_buffer.size() == stored
     assert fresh.model.replay_buffer.size() == 0
+    # Without --trust-pickle: the same weights and statistics (from the JSON), no buffer.
+    np.testing.assert_array_equal(_policy_weights(without_buffer.model), weights)
+    np.testing.assert_array_equal(without_buffer.env.obs_rms.mean, saved.obs_rms.mean)
+    assert without_buffer.env.obs_rms.count == saved.obs_rms.count
+    assert without_buffer.model.replay_buffer.size() == 0
     # It trains on, counting its own steps, into its own folder.
     result = pendulum(
         tmp_path, hyperparams={"normalize": True}, trained_agent=str(first.zoo_model)

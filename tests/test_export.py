@@ -10,6 +10,7 @@ import pytest
 import torch
 import yaml
 
+from minitaur_env.onnx_policy import OnnxPolicy
 from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.evaluation import load_policy
@@ -73,7 +74,8 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     shipped = tmp_path / "pretrained" / "tqc" / "MinitaurBulletEnv-v0_1"
     selected = run_script(
         "benchmarks/select_policy.py", str(run), "--from-steps", "200", "--episodes", "1",
-        "--select-episodes", "2", "--json", "report.json", "--ship", str(shipped), cwd=tmp_path,
+        "--select-episodes", "2", "--json", "report.json", "--ship", str(shipped),
+        "--trust-pickle", cwd=tmp_path,  # an SBX model is a pickle; this test trained it
     )  # fmt: skip
     assert selected.returncode == 0, selected.stderr
     chosen = Path(json.loads((tmp_path / "report.json").read_text())["chosen"]["model"])
@@ -87,6 +89,12 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     np.testing.assert_allclose(actions, expected, atol=1e-5)
     provenance = yaml.safe_load((shipped / "provenance.yml").read_text())
     assert provenance["backend"] == "sbx" and "sbx_to_sb3" in provenance["exported"]["how"]
+    # ...and its ONNX actor beside it, checked against the shipped zip when written.
+    assert provenance["onnx"]["max_abs_action_difference_from_predict"] <= 1e-5
+    onnx = OnnxPolicy(shipped / provenance["onnx"]["file"])
+    np.testing.assert_allclose(
+        np.stack([onnx.act(o) for o in obs]), np.stack([policy.act(o) for o in obs]), atol=1e-5
+    )
     assert provenance["selection"]["seeds"] == "5000..5001"  # --select-episodes, not --episodes
     assert provenance["eval_seeds"] == "12345..12345"
     # its figures are evaluate.py's on the shipped file, statistics and all

@@ -68,10 +68,15 @@ def test_default_run_leaves_everything_behind(tmp_path):
         "rl_model_80_steps.zip",
         "rl_model_replay_buffer_160_steps.pkl",
         "rl_model_replay_buffer_240_steps.pkl",
+        "rl_model_vecnormalize_160_steps.json",  # pickle-free, for loaders that trust none
         "rl_model_vecnormalize_160_steps.pkl",
+        "rl_model_vecnormalize_240_steps.json",
         "rl_model_vecnormalize_240_steps.pkl",
+        "rl_model_vecnormalize_80_steps.json",
         "rl_model_vecnormalize_80_steps.pkl",
     ]
+    assert (run / "MinitaurBulletEnv-v0" / "vecnormalize.json").is_file()
+    assert (run / "best_model_vecnormalize.json").is_file()
     assert (run / "monitor" / "0.monitor.csv").read_text().count("\n") > 2
     assert "train/critic_loss" in (run / "progress.csv").read_text()
     assert (run / "learning_curve.png").read_bytes().startswith(b"\x89PNG")
@@ -144,13 +149,11 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     assert final.num_timesteps == 250
     final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_250_steps.pkl")
     assert final.replay_buffer.size() == 149 + 99  # the 150-step buffer was resumed
+    model = str(run / "MinitaurBulletEnv-v0.zip")
+    refused = run_script("evaluate.py", "--model", model, "--episodes", "1", cwd=tmp_path)
+    assert refused.returncode == 2 and "--trust-pickle" in refused.stderr  # flax is pickled
     evaluated = run_script(
-        "evaluate.py",
-        "--model",
-        str(run / "MinitaurBulletEnv-v0.zip"),
-        "--episodes",
-        "1",
-        cwd=tmp_path,
+        "evaluate.py", "--model", model, "--episodes", "1", "--trust-pickle", cwd=tmp_path
     )
     assert evaluated.returncode == 0, evaluated.stderr
     assert "(sac, sbx, observations normalized)" in evaluated.stdout

@@ -4,6 +4,20 @@
 call the same API.
 """
 
+import argparse
+from typing import NoReturn
+
+# The algorithms train.py offers (``algorithms.ALGORITHMS`` maps them to classes); named
+# here so that evaluate.py parses its flags without importing torch.
+ALGORITHM_NAMES = ("sac", "td3", "ppo", "a2c", "tqc", "crossq")
+
+
+class OneLineErrorParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line, not the whole usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
 
 class UsageError(Exception):
     """A mistake in what the user asked for; the scripts print it as one line."""
@@ -17,7 +31,8 @@ def missing_dependency(program: str, error: ModuleNotFoundError) -> str:
     """The one line a script prints when the ``train`` extra is not installed."""
     return (
         f"{program}: error: {error.name} is not installed; training and evaluation need "
-        "the train extra: pip install torch==2.13.0 'minitaur-env[train]'"
+        "the train extra: pip install torch==2.13.0 'minitaur-env[train]' (playing an "
+        "exported .onnx policy needs only 'minitaur-env[onnx]')"
     )
 
 
@@ -27,7 +42,14 @@ _API = {
     "RunResult": "minitaur_env.training.experiment",
     "RunFolder": "minitaur_env.training.run_folder",
 }
-__all__ = ["TrainingDiverged", "UsageError", "missing_dependency", *_API]
+__all__ = [
+    "ALGORITHM_NAMES",
+    "OneLineErrorParser",
+    "TrainingDiverged",
+    "UsageError",
+    "missing_dependency",
+    *_API,
+]
 
 
 def __getattr__(name: str):

@@ -9,7 +9,7 @@ from typing import Any
 from stable_baselines3 import A2C, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from minitaur_env.training import UsageError
+from minitaur_env.training import ALGORITHM_NAMES, UsageError
 
 try:
     from sb3_contrib import TQC, CrossQ
@@ -28,6 +28,7 @@ ALGORITHMS: dict[str, type[BaseAlgorithm] | None] = {
     "tqc": TQC,
     "crossq": CrossQ,
 }
+assert tuple(ALGORITHMS) == ALGORITHM_NAMES
 OFF_POLICY = {"sac", "td3", "tqc", "crossq"}
 
 

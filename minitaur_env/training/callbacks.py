@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import unwrap_vec_normalize
 from minitaur_env.training import TrainingDiverged
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.safe_load import save_normalizer
 from minitaur_env.training.video import record_video
 
 
@@ -64,7 +65,7 @@ def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:
         run.prune_replay_buffers()
     normalizer = unwrap_vec_normalize(model.get_env())
     if normalizer is not None:
-        normalizer.save(str(run.vecnormalize(steps)))
+        save_normalizer(normalizer, run.vecnormalize(steps))
     return path
 
 
@@ -186,7 +187,8 @@ class VideoRecorderCallback(BaseCallback):
 
 
 class SaveVecNormalizeCallback(BaseCallback):
-    """Save the training env's VecNormalize statistics (as EvalCallback's new-best hook)."""
+    """Save the training env's VecNormalize statistics, pickle and JSON (as EvalCallback's
+    new-best hook)."""
 
     def __init__(self, *paths: str | Path) -> None:
         super().__init__()
@@ -196,5 +198,5 @@ class SaveVecNormalizeCallback(BaseCallback):
         normalizer = self.model.get_vec_normalize_env()
         if normalizer is not None:
             for path in self.paths:
-                normalizer.save(str(path))
+                save_normalizer(normalizer, path)
         return True

@@ -6,19 +6,12 @@ import argparse
 import shlex
 import sys
 from collections.abc import Callable
-from typing import Any, NoReturn
+from typing import Any
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.algorithms import ALGORITHMS, BACKENDS
 
 DEFAULT_ENV = "MinitaurBulletEnv-v0"
-
-
-class OneLineErrorParser(argparse.ArgumentParser):
-    """An ArgumentParser whose errors are one line, not the whole usage block."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def add_experiment_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,7 +77,9 @@ def suppress_defaults(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
 
 
 # Flags that may accompany --resume: they change how a session runs, not what is trained.
-HARMLESS_ON_RESUME = {"resume", "n_timesteps", "progress", "num_threads", "device", "verbose"}
+HARMLESS_ON_RESUME = {
+    "resume", "n_timesteps", "progress", "num_threads", "device", "verbose", "trust_pickle",
+}  # fmt: skip
 # Flags that name config.yml fields one to one.
 CONFIG_FLAGS = (
     "algo", "backend", "env", "seed", "n_envs", "vec_env", "eval_freq", "eval_episodes",
@@ -142,6 +137,7 @@ def train_from_args(args: argparse.Namespace, given: set) -> int:
                 device=args.device,
                 tensorboard_log=args.tensorboard_log,
                 trained_agent=args.trained_agent,
+                trust_pickle=args.trust_pickle,
             )
             experiment = Experiment.create(config, args.log_folder, **options)
         result = experiment.run()

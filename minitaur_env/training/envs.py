@@ -1,10 +1,9 @@
-"""Env factories for training, evaluation and video, from a gymnasium id."""
+"""Vectorized env factories for training and evaluation, from a gymnasium id."""
 
 from __future__ import annotations
 
 from typing import Any
 
-import gymnasium as gym
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import (
     DummyVecEnv,
@@ -13,9 +12,17 @@ from stable_baselines3.common.vec_env import (
     VecNormalize,
 )
 
-import minitaur_env  # noqa: F401  (registers the Minitaur ids)
 from minitaur_env.training import TrainingDiverged, UsageError
+from minitaur_env.training.single_env import make_env, qualified_env_id
 from minitaur_env.training.vec_env import GroupedSubprocVecEnv, available_cores
+
+__all__ = [
+    "NanGuard",
+    "make_env",
+    "make_eval_env",
+    "make_training_env",
+    "qualified_env_id",
+]
 
 # "auto": several envs grouped over the CPU cores, a single env in the calling process.
 VEC_ENVS = ("auto", "dummy", "grouped")
@@ -33,24 +40,6 @@ class NanGuard(VecCheckNan):
             super()._check_val(event, **kwargs)
         except ValueError as error:
             raise TrainingDiverged(" ".join(str(error).split())) from None
-
-
-def qualified_env_id(env_id: str) -> str:
-    """The id, checked, with a ``module:`` prefix where a fresh process needs the import.
-
-    SubprocVecEnv workers start from a clean interpreter, where only a prefixed id
-    such as ``minitaur_env:MinitaurBulletEnv-v0`` is known to gymnasium.
-    """
-    try:
-        spec = gym.spec(env_id)
-    except gym.error.Error as error:
-        raise UsageError(f"unknown env id {env_id!r}: {error}") from error
-    entry_point = spec.entry_point
-    if ":" not in env_id and isinstance(entry_point, str):
-        module = entry_point.split(":")[0].split(".")[0]
-        if module == "minitaur_env":
-            return f"{module}:{env_id}"
-    return env_id
 
 
 def resolve_vec_env(vec_env: str, n_envs: int) -> str:
@@ -117,12 +106,3 @@ def make_eval_env(
         options.update(training=False, norm_reward=False)
         env = VecNormalize(env, **options)
     return env
-
-
-def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, **extra: Any) -> gym.Env:
-    """A single gymnasium env (with its registered time limit)."""
-    qualified = qualified_env_id(env_id)
-    try:
-        return gym.make(qualified, **{**(env_kwargs or {}), **extra})
-    except (TypeError, ValueError) as error:
-        raise UsageError(f"cannot make {env_id} with {env_kwargs or {}}: {error}") from error

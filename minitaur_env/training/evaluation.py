@@ -1,4 +1,8 @@
-"""Finding, loading and judging a trained policy (used by evaluate.py and benchmarks)."""
+"""Finding, loading and judging a trained policy (used by evaluate.py and benchmarks).
+
+Importing it needs neither torch nor SB3: an exported ``.onnx`` policy plays with
+onnxruntime alone; SB3 is imported when a model zip is loaded.
+"""
 
 from __future__ import annotations
 
@@ -10,17 +14,20 @@ import time
 import zipfile
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
 import yaml
-from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import VecNormalize
 
-from minitaur_env.training import UsageError, policies
-from minitaur_env.training.algorithms import ALGORITHMS, algorithm_class, load_model
-from minitaur_env.training.run_folder import RunFolder, load_pickle
+from minitaur_env.onnx_policy import OnnxPolicy
+from minitaur_env.training import ALGORITHM_NAMES, UsageError, missing_dependency
+from minitaur_env.training.run_folder import RunFolder
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    from minitaur_env.training.safe_load import ObservationNormalizer
 
 REWARD_TERMS = ("reward_forward", "reward_energy", "reward_drift", "reward_shake")
 PRETRAINED_DIR = Path(__file__).resolve().parents[2] / "pretrained"
@@ -28,7 +35,7 @@ PRETRAINED_DIR = Path(__file__).resolve().parents[2] / "pretrained"
 
 @dataclasses.dataclass
 class LoadedPolicy:
-    """A model, the VecNormalize statistics it was trained with, and where it came from."""
+    """A model, the observation statistics it was trained with, and where it came from."""
 
     model: BaseAlgorithm
     algo: str
@@ -36,13 +43,25 @@ class LoadedPolicy:
     path: Path
     env_id: str | None
     env_kwargs: dict[str, Any]
-    normalizer: VecNormalize | None
+    normalizer: ObservationNormalizer | None
 
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
         if self.normalizer is not None:
             obs = self.normalizer.normalize_obs(obs)
         action, _ = self.model.predict(obs, deterministic=deterministic)
         return action
+
+    def check_spaces(self, observation_space: gym.Space, action_space: gym.Space) -> None:
+        model = self.model
+        if model.observation_space.shape != observation_space.shape:
+            raise UsageError(
+                f"{self.path.name} expects observations of shape "
+                f"{model.observation_space.shape}, the env gives {observation_space.shape}"
+            )
+        if model.action_space != action_space:
+            raise UsageError(
+                f"{self.path.name} acts in {model.action_space}, the env needs {action_space}"
+            )
 
 
 def infer_algo(path: Path) -> tuple[str, str]:
@@ -52,9 +71,11 @@ def infer_algo(path: Path) -> tuple[str, str]:
             data = json.loads(archive.read("data"))
     except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, OSError) as error:
         raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
+    from minitaur_env.training import policies
+
     module = str(data.get("policy_class", {}).get("__module__", ""))
     backend = "sbx" if module.startswith("sbx.") else "sb3"
-    for name in ALGORITHMS:
+    for name in ALGORITHM_NAMES:
         if f".{name}." in module or module.endswith(f".{name}"):
             return name, backend
     if module == policies.__name__ and len(policies.POLICIES) == 1:  # our own, for SAC
@@ -82,24 +103,43 @@ def run_config(model_path: Path) -> dict[str, Any]:
     return {}
 
 
-def load_policy(model_path: Path, algo: str | None = None, device: str = "auto") -> LoadedPolicy:
+def load_policy(
+    model_path: Path, algo: str | None = None, device: str = "auto", trust_pickle: bool = False
+) -> LoadedPolicy | OnnxPolicy:
+    """A model zip with its VecNormalize statistics, or an exported ``.onnx`` policy.
+
+    Runs no code from the files unless ``trust_pickle`` (see ``safe_load``).
+    """
+    if model_path.suffix == ".onnx":
+        policy = OnnxPolicy(model_path)
+        if algo is not None and algo != policy.algo:
+            raise UsageError(f"{model_path} holds a {policy.algo} policy, not {algo}")
+        return policy
     if not model_path.is_file():
         raise UsageError(f"model file not found: {model_path}")
+    try:
+        from minitaur_env.training.algorithms import algorithm_class
+        from minitaur_env.training.safe_load import load_sb3_model, observation_normalizer
+    except ModuleNotFoundError as error:
+        exported = RunFolder(model_path.parent).onnx_policy
+        alternative = (
+            f"or play its ONNX export without them: --model {exported}"
+            if exported.is_file()
+            else "or export it where they are (python -m minitaur_env.onnx) and play the .onnx"
+        )
+        needs = missing_dependency("a model zip", error).split(": error: ", 1)[1]
+        raise UsageError(f"{needs}; {alternative}") from error
     config = run_config(model_path)
     inferred_algo, backend = infer_algo(model_path)
     algo = algo or config.get("algo") or inferred_algo
     backend = config.get("backend", backend)
     cls = algorithm_class(algo, backend)
     try:
-        model = load_model(cls, model_path, device=device)
+        model = load_sb3_model(cls, model_path, trust_pickle, device=device)
     except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
         raise UsageError(f"cannot load {model_path} as a {algo} model: {error}") from error
     stats = normalizer_path_for(model_path)
-    normalizer = None
-    if stats is not None:
-        normalizer = load_pickle(stats)
-        normalizer.training = False
-        normalizer.norm_reward = False
+    normalizer = None if stats is None else observation_normalizer(stats, trust_pickle)
     return LoadedPolicy(
         model=model,
         algo=algo,
@@ -149,7 +189,7 @@ def find_model(
         load_best = load_best or not (load_checkpoint or load_last_checkpoint)
     root = Path(log_folder)
     runs = []
-    for algo_name in [algo] if algo else list(ALGORITHMS):
+    for algo_name in [algo] if algo else list(ALGORITHM_NAMES):
         if env_id:
             runs += [run.path for run in RunFolder.all(root, algo_name, env_id)]
         elif (root / algo_name).is_dir():
@@ -184,28 +224,15 @@ def find_model(
     return path
 
 
-def check_spaces(policy: LoadedPolicy, env: gym.Env) -> None:
-    model = policy.model
-    if model.observation_space.shape != env.observation_space.shape:
-        raise UsageError(
-            f"{policy.path.name} expects observations of shape {model.observation_space.shape}, "
-            f"the env gives {env.observation_space.shape}"
-        )
-    if model.action_space != env.action_space:
-        raise UsageError(
-            f"{policy.path.name} acts in {model.action_space}, the env needs {env.action_space}"
-        )
-
-
 def run_episodes(
-    policy: LoadedPolicy,
+    policy: LoadedPolicy | OnnxPolicy,
     env: gym.Env,
     episodes: int,
     seed: int,
     deterministic: bool = True,
 ) -> list[dict[str, float]]:
     """One record per episode: return, length, distance, speed, fall, reward terms."""
-    check_spaces(policy, env)
+    policy.check_spaces(env.observation_space, env.action_space)
     dt = float(getattr(env.unwrapped, "dt", 0.0) or 0.0)
     records = []
     for episode in range(episodes):
@@ -273,9 +300,9 @@ def format_table(summary: dict[str, dict[str, float]], episodes: int) -> str:
 
 def evaluate_from_args(args: Any, default_env: str) -> int:
     """What evaluate.py does with its flags; returns the exit code."""
-    from minitaur_env.training.envs import make_env
     from minitaur_env.training.hyperparams import parse_overrides
     from minitaur_env.training.run_folder import ensure_writable
+    from minitaur_env.training.single_env import make_env
     from minitaur_env.training.video import atomic_path, record_video
 
     try:
@@ -288,7 +315,9 @@ def evaluate_from_args(args: Any, default_env: str) -> int:
             args.load_checkpoint,
             args.load_last_checkpoint,
         )
-        policy = load_policy(Path(path), args.algo, args.device)
+        policy = load_policy(Path(path), args.algo, args.device, args.trust_pickle)
+        if isinstance(policy, OnnxPolicy) and not args.deterministic:
+            raise UsageError(f"{path} is the deterministic actor; --stochastic needs the zip")
         env_id = args.env or policy.env_id or default_env
         # Judge on the registered episode length, whatever the training run used.
         env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
@@ -301,8 +330,10 @@ def evaluate_from_args(args: Any, default_env: str) -> int:
             ensure_writable(video_path.parent)
         if args.json is not None:
             ensure_writable(args.json.parent)
-        details = [policy.algo] + (["sbx"] if policy.backend == "sbx" else [])
-        if policy.normalizer is not None and policy.normalizer.norm_obs:
+        details = [policy.algo] + ([policy.backend] if policy.backend != "sb3" else [])
+        if isinstance(policy, OnnxPolicy):
+            details.append("onnxruntime, normalization in the graph")
+        elif policy.normalizer is not None and policy.normalizer.norm_obs:
             details.append("observations normalized")
         print(f"policy: {policy.path} ({', '.join(details)}) on {env_id}")
 

@@ -25,7 +25,7 @@ import sys
 import threading
 import time
 import zipfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,13 @@ from minitaur_env.training.envs import (
 from minitaur_env.training.hyperparams import RUN_KEYS, algorithm_kwargs, load_hyperparams
 from minitaur_env.training.policies import resolve_policy
 from minitaur_env.training.run_folder import RunFolder, load_pickle
+from minitaur_env.training.safe_load import (
+    TRUST_FLAG,
+    attach,
+    load_sb3_model,
+    save_normalizer,
+    training_normalizer,
+)
 from minitaur_env.training.vec_env import EnvWorkerError
 
 
@@ -77,6 +84,8 @@ class ExperimentConfig:
     device: str = "auto"
     tensorboard_log: str | None = None
     trained_agent: str | None = None  # a model zip to start from, as the zoo's -i
+    # -i: also load the pickles in and beside that model (they can run code from the file)
+    trust_pickle: bool = False
 
     @classmethod
     def resolve(
@@ -330,7 +339,7 @@ class Experiment:
     def _algorithm(self) -> type[BaseAlgorithm]:
         return algorithm_class(self.config.algo, self.config.backend)
 
-    def _build_envs(self, seed: int, normalizer: VecNormalize | None) -> None:
+    def _build_envs(self, seed: int, normalizer: Callable[[VecEnv], VecNormalize] | None) -> None:
         config = self.config
         env = make_training_env(
             config.env,
@@ -342,9 +351,8 @@ class Experiment:
             append_monitor=self.resuming,
         )
         self.env = env
-        if normalizer is not None:
-            normalizer.set_venv(env)
-            self.env = normalizer
+        if normalizer is not None:  # saved statistics to go on from
+            self.env = normalizer(env)
         elif config.normalize:
             options = config.normalize if isinstance(config.normalize, dict) else {}
             gamma = config.hyperparams.get("gamma", 0.99)
@@ -379,9 +387,10 @@ class Experiment:
         kwargs = algorithm_kwargs(config.hyperparams)
         kwargs.pop("policy_kwargs", None)  # the saved network decides its own shape
         try:
-            model = load_model(
-                self._algorithm(), path, env=self.env, seed=config.seed, device=config.device,
-                tensorboard_log=config.tensorboard_log, **kwargs,
+            model = load_sb3_model(
+                self._algorithm(), path, config.trust_pickle, training=True, env=self.env,
+                seed=config.seed, device=config.device, tensorboard_log=config.tensorboard_log,
+                **kwargs,
             )  # fmt: skip
         except (ValueError, KeyError) as error:  # e.g. the spaces of another env
             message = " ".join(str(error).split())[:200]
@@ -389,12 +398,16 @@ class Experiment:
                 f"--trained-agent {path} does not fit {config.env}: {message}"
             ) from error
         model.num_timesteps = 0  # -n counts this run's steps, as in the zoo
-        buffer = path.with_name("replay_buffer.pkl")
+        buffer = RunFolder.replay_buffer_beside(path)
         if config.algo in OFF_POLICY and buffer.is_file():
-            model.load_replay_buffer(buffer)
+            if config.trust_pickle:
+                model.load_replay_buffer(buffer)
+            else:
+                self.log(f"{buffer} is a pickle (it can run code): starting with an empty "
+                         f"replay buffer; pass {TRUST_FLAG} to load it")  # fmt: skip
         return model
 
-    def _trained_agent_normalizer(self) -> VecNormalize | None:
+    def _trained_agent_normalizer(self) -> Callable[[VecEnv], VecNormalize] | None:
         """The trained agent's VecNormalize statistics, to go on adapting from."""
         from minitaur_env.training.evaluation import normalizer_path_for
 
@@ -406,9 +419,13 @@ class Experiment:
                 f"run has normalize={self.config.normalize}; set --hyperparams normalize="
                 f"{'false' if path is None else 'true'}"
             )
-        return load_pickle(path) if path is not None else None
+        if path is None:
+            return None
+        return training_normalizer(path, self.config.trust_pickle)
 
-    def _load_newest_checkpoint(self) -> tuple[BaseAlgorithm, VecNormalize | None, int]:
+    def _load_newest_checkpoint(
+        self,
+    ) -> tuple[BaseAlgorithm, Callable[[VecEnv], VecNormalize] | None, int]:
         """The newest checkpoint whose files all load; no env is built for torn ones."""
         algorithm = self._algorithm()
         for steps, path in self.run_folder.checkpoints():
@@ -416,7 +433,7 @@ class Experiment:
                 model = load_model(algorithm, path, device=self.config.device)
                 normalizer = None
                 if self.config.normalize:
-                    normalizer = load_pickle(self.run_folder.vecnormalize(steps))
+                    normalizer = attach(load_pickle(self.run_folder.vecnormalize(steps)))
                 buffer = self.run_folder.replay_buffer(steps)
                 if self.config.algo in OFF_POLICY:
                     if buffer.exists():
@@ -616,7 +633,7 @@ class Experiment:
                 model.save(run.zoo_model)
                 normalizer = model.get_vec_normalize_env()
                 if normalizer is not None:
-                    normalizer.save(str(run.zoo_vecnormalize))
+                    save_normalizer(normalizer, run.zoo_vecnormalize)
             result = RunResult(
                 status, run, model.num_timesteps, model.num_timesteps - start_steps, elapsed,
                 checkpoint=checkpoint, signal=stop_signal, message=message,

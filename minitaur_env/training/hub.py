@@ -1,8 +1,10 @@
 """A trained agent as a Hugging Face Hub model folder, in the layout of the zoo's push_to_hub.
 
-Written offline: the model evaluated on unseen seeds, a replay video and a model card
-whose ``model-index`` the Hub reads (huggingface_hub's ``metadata_eval_result``). Pushing
-is the user's step, e.g. ``huggingface-cli upload <user>/<folder name> <folder>``.
+Written offline: the model evaluated on unseen seeds, its deterministic actor as
+``policy.onnx`` (normalization folded in; plays with onnxruntime alone), a replay video
+and a model card whose ``model-index`` the Hub reads (huggingface_hub's
+``metadata_eval_result``). Pushing is the user's step, e.g. ``huggingface-cli upload
+<user>/<folder name> <folder>``.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from minitaur_env.training.evaluation import (
     summarize,
 )
 from minitaur_env.training.run_folder import HUB_VECNORMALIZE, RunFolder, zoo_hyperparams
+from minitaur_env.training.safe_load import copy_statistics
 
 
 def model_of(run_or_model: Path) -> Path:
@@ -43,14 +46,16 @@ def package_for_hub(
     episodes: int = 20,
     seed: int = 12345,
     video_steps: int = 1000,
+    trust_pickle: bool = False,
 ) -> Path:
     """Write ``<out_dir>/<algo>-<env>/`` and return it."""
     from minitaur_env.training.envs import make_env
+    from minitaur_env.training.onnx_export import export_onnx
     from minitaur_env.training.video import record_video
 
     if episodes < 1:
         raise UsageError("--episodes must be >= 1: the model card reports an evaluation")
-    policy = load_policy(model_of(run_or_model))
+    policy = load_policy(model_of(run_or_model), trust_pickle=trust_pickle)
     env_id = env_id or policy.env_id
     if not env_id:
         raise UsageError(f"{policy.path}: no run config names its env; pass --env")
@@ -59,11 +64,12 @@ def package_for_hub(
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(policy.path, folder / f"{policy.algo}-{env_name}.zip")
     stats = normalizer_path_for(policy.path)
-    if stats is not None:
-        shutil.copyfile(stats, folder / HUB_VECNORMALIZE)
+    if stats is not None:  # the pickle for the zoo and SB3, the JSON for safe loading
+        copy_statistics(stats, folder / HUB_VECNORMALIZE, trust_pickle)
     config = run_config(policy.path)
     (folder / "config.yml").write_text(yaml.safe_dump(zoo_hyperparams(config)))
     (folder / "env_kwargs.yml").write_text(yaml.safe_dump(policy.env_kwargs))
+    export_onnx(policy.path, folder / ONNX_NAME, trust_pickle)
 
     # Judged on the registered episode length, whatever the training run used.
     env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
@@ -94,6 +100,9 @@ def package_for_hub(
         env.close()
     _model_card(policy, env_id, folder, config, results).save(folder / "README.md")
     return folder
+
+
+ONNX_NAME = "policy.onnx"
 
 
 def _commands(training: dict) -> list[str]:
@@ -154,6 +163,7 @@ def _model_card(
         **metadata,
     )
     module = type(policy.model).__module__.split(".")[0]  # stable_baselines3, sb3_contrib, sbx
+    obs_dim = policy.model.observation_space.shape[0]
     name = folder.name
     if policy.normalizer is not None:
         normalization = (
@@ -190,6 +200,30 @@ for _ in range(1000):
 
 With minitaur-env's scripts: `python evaluate.py --model {name}.zip --episodes 20`
 (it finds `vec_normalize.pkl` beside the zip).
+
+## Without torch: `{ONNX_NAME}`
+
+The deterministic actor with the observation normalization folded in: raw float32
+observations in (`obs`, shape (batch, {obs_dim})), actions in env units out.
+`pip install onnxruntime`, then:
+
+```python
+import onnxruntime as ort
+session = ort.InferenceSession("{ONNX_NAME}")
+action = session.run(None, {{"obs": obs[None].astype("float32")}})[0][0]
+```
+
+or `python evaluate.py --model {ONNX_NAME}` with `pip install 'minitaur-env[onnx]'`.
+
+## Loading models safely
+
+A pickle can run code when it is loaded. SB3's `load` unpickles entries of
+`{name}.zip`, and `VecNormalize.load` unpickles `vec_normalize.pkl`: do that only with
+files from a source you trust. minitaur-env's own loaders (`evaluate.py`,
+`python -m minitaur_env.package`, `train.py -i`) unpickle nothing by default: they
+rebuild the zip's entries from their readable copies, load its tensors weights-only and
+read the statistics from `vec_normalize.json`; `--trust-pickle` is the opt-in for files
+without such a copy. `{ONNX_NAME}` holds weights and operators and runs no code of its own.
 
 ## Training
 

@@ -182,6 +182,11 @@ class RunFolder:
         return self.path / "provenance.yml"
 
     @property
+    def onnx_policy(self) -> Path:
+        """The deterministic actor as ONNX (python -m minitaur_env.onnx), where shipped."""
+        return self.path / "policy.onnx"
+
+    @property
     def learning_curve(self) -> Path:
         return self.path / "learning_curve.png"
 
@@ -209,19 +214,28 @@ class RunFolder:
         return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
 
     @staticmethod
+    def replay_buffer_beside(model: Path) -> Path:
+        """The replay buffer the zoo saves beside a model (``train.py -i`` starts from it)."""
+        return model.with_name("replay_buffer.pkl")
+
+    @staticmethod
     def vecnormalize_beside(model: Path) -> Path:
         """Where the VecNormalize statistics of a best model zip (or a legacy final) are kept."""
         return model.with_name(f"{model.stem}_vecnormalize.pkl")
 
     def vecnormalize_for(self, model: Path) -> Path | None:
-        """The VecNormalize statistics saved with ``model`` (a zip of this run), if any."""
+        """The VecNormalize statistics saved with ``model`` (a zip of this run), if any: the
+        pickle's path, whether the pickle or only its JSON sibling is there."""
         candidates = [self.vecnormalize_beside(model), model.parent / HUB_VECNORMALIZE]
         if model == self.zoo_model:
             candidates.insert(0, self.zoo_vecnormalize)
         match = _CHECKPOINT.match(model.name)
         if match and model.parent == self.checkpoint_dir:
             candidates.append(self.vecnormalize(int(match.group(1))))
-        return next((path for path in candidates if path.is_file()), None)
+        return next(
+            (path for path in candidates if path.is_file() or normalizer_json(path).is_file()),
+            None,
+        )
 
     def checkpoints(self) -> list[tuple[int, Path]]:
         """(steps, model zip) of every checkpoint, newest first."""
@@ -333,6 +347,13 @@ def _write_yaml(path: Path, content: dict[str, Any], sort_keys: bool = True) -> 
     temporary = path.with_suffix(".yml.tmp")
     temporary.write_text(yaml.safe_dump(content, sort_keys=sort_keys))
     temporary.replace(path)
+
+
+def normalizer_json(pickle_path: Path) -> Path:
+    """The pickle-free sibling of VecNormalize statistics: ``vecnormalize.pkl`` ->
+    ``vecnormalize.json``, read by default (``safe_load``); the pickle is for the zoo and
+    ``--resume``."""
+    return pickle_path.with_suffix(".json")
 
 
 def load_pickle(path: Path) -> Any:

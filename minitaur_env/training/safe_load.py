@@ -1,0 +1,336 @@
+"""Loading models and their statistics without running code from the files.
+
+A pickle runs code when it is loaded; SB3's ``load`` cloudpickles entries of a zip's
+``data``, and VecNormalize statistics and replay buffers are pickles. A model downloaded
+from the Hub could therefore run anything when it is evaluated. By default:
+
+- a model zip loads with ``custom_objects`` for every cloudpickled entry of its ``data``:
+  the policy and replay-buffer classes resolved by name among SB3's, sb3-contrib's and
+  this package's own, the spaces rebuilt from the readable fields beside the pickle,
+  schedules and training-only state replaced; its tensors load weights-only (SB3 does);
+  an entry this module does not know is refused;
+- normalization statistics are read from their pickle-free JSON sibling
+  (``vecnormalize.json`` beside ``vecnormalize.pkl``), which every run folder, shipped
+  folder and Hub folder written here carries;
+- a pickle with no such sibling, an unknown entry or an SBX zip (its flax parameters are
+  pickled) loads only with ``trust_pickle`` (``--trust-pickle``).
+
+``--resume`` still reads a run folder's own pickles (checkpoints, replay buffers): a run
+folder resumed from elsewhere is trusted as the user's own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import re
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from minitaur_env.training import UsageError
+from minitaur_env.training.run_folder import load_pickle, normalizer_json
+
+TRUST_FLAG = "--trust-pickle"
+# Modules whose classes a zip may name as its policy or replay buffer.
+TRUSTED_MODULES = ("stable_baselines3.", "sb3_contrib.", "minitaur_env.training.policies")
+_CLASS_NAME = re.compile(r"<function (\w+)\.__init__ at ")
+
+
+class UntrustedPickle(UsageError):
+    """Loading would unpickle a file the user has not vouched for."""
+
+    def __init__(self, path: Path, what: str) -> None:
+        super().__init__(
+            f"{path}: loading {what} would unpickle it, and a pickle can run code from the "
+            f"file; pass {TRUST_FLAG} if you trust where it came from"
+        )
+
+
+@dataclasses.dataclass
+class ObservationNormalizer:
+    """VecNormalize's observation statistics, as evaluation applies them (frozen)."""
+
+    mean: np.ndarray
+    var: np.ndarray
+    epsilon: float
+    clip_obs: float
+    norm_obs: bool = True
+
+    def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        """Exactly VecNormalize's ``normalize_obs``: float64 arithmetic, float32 result."""
+        if not self.norm_obs:
+            return obs
+        scaled = (obs - self.mean) / np.sqrt(self.var + self.epsilon)
+        return np.clip(scaled, -self.clip_obs, self.clip_obs).astype(np.float32)
+
+
+def save_normalizer(normalizer: Any, pickle_path: Path) -> None:
+    """VecNormalize's pickle (the zoo's scripts and ``--resume`` read it) and its JSON."""
+    from minitaur_env.training.video import atomic_path
+
+    with atomic_path(pickle_path) as temp:
+        normalizer.save(str(temp))
+    write_normalizer_json(normalizer, normalizer_json(pickle_path))
+
+
+def write_normalizer_json(normalizer: Any, path: Path) -> None:
+    from minitaur_env.training.video import atomic_path
+
+    def stats(rms: Any) -> dict[str, Any]:
+        return {"mean": np.asarray(rms.mean).tolist(), "var": np.asarray(rms.var).tolist(),
+                "count": float(rms.count)}  # fmt: skip
+
+    content = {
+        "format": "minitaur_env VecNormalize statistics 1",
+        "norm_obs": bool(normalizer.norm_obs),
+        "norm_reward": bool(normalizer.norm_reward),
+        "clip_obs": float(normalizer.clip_obs),
+        "clip_reward": float(normalizer.clip_reward),
+        "gamma": float(normalizer.gamma),
+        "epsilon": float(normalizer.epsilon),
+        "obs_rms": stats(normalizer.obs_rms),
+        "ret_rms": stats(normalizer.ret_rms),
+    }
+    with atomic_path(path) as temp:
+        temp.write_text(json.dumps(content))
+
+
+def copy_statistics(source: Path, target: Path, trust_pickle: bool = False) -> None:
+    """Copy VecNormalize statistics with their JSON sibling; a trusted pickle without
+    one gets it written."""
+    import shutil
+
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if source.is_file():
+        shutil.copyfile(source, target)
+    if normalizer_json(source).is_file():
+        shutil.copyfile(normalizer_json(source), normalizer_json(target))
+    elif not trust_pickle:
+        raise UntrustedPickle(
+            source, f"the VecNormalize statistics (no {normalizer_json(source).name})"
+        )
+    else:
+        write_normalizer_json(load_pickle(source), normalizer_json(target))
+
+
+def read_normalizer_json(path: Path) -> dict[str, Any]:
+    try:
+        content = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise UsageError(f"{path}: not readable VecNormalize statistics ({error})") from error
+    missing = [k for k in ("norm_obs", "clip_obs", "epsilon", "obs_rms", "ret_rms")
+               if not isinstance(content, dict) or k not in content]  # fmt: skip
+    if missing:
+        raise UsageError(f"{path}: not VecNormalize statistics (no {', '.join(missing)})")
+    return content
+
+
+def observation_normalizer(pickle_path: Path, trust_pickle: bool = False) -> ObservationNormalizer:
+    """The statistics saved as ``pickle_path``: from its JSON sibling, else (trusted) the
+    pickle itself."""
+    sibling = normalizer_json(pickle_path)
+    if sibling.is_file():
+        content = read_normalizer_json(sibling)
+        return ObservationNormalizer(
+            mean=np.asarray(content["obs_rms"]["mean"], dtype=np.float64),
+            var=np.asarray(content["obs_rms"]["var"], dtype=np.float64),
+            epsilon=float(content["epsilon"]),
+            clip_obs=float(content["clip_obs"]),
+            norm_obs=bool(content["norm_obs"]),
+        )
+    if not trust_pickle:
+        raise UntrustedPickle(pickle_path, f"the VecNormalize statistics (no {sibling.name})")
+    loaded = load_pickle(pickle_path)
+    return ObservationNormalizer(
+        mean=np.asarray(loaded.obs_rms.mean, dtype=np.float64),
+        var=np.asarray(loaded.obs_rms.var, dtype=np.float64),
+        epsilon=float(loaded.epsilon),
+        clip_obs=float(loaded.clip_obs),
+        norm_obs=bool(loaded.norm_obs),
+    )
+
+
+def training_normalizer(pickle_path: Path, trust_pickle: bool = False) -> Callable[[Any], Any]:
+    """A function that wraps a training VecEnv in a VecNormalize with the saved statistics
+    (from the JSON sibling, else the trusted pickle), which goes on adapting from them."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    sibling = normalizer_json(pickle_path)
+    if not sibling.is_file():
+        if not trust_pickle:
+            raise UntrustedPickle(pickle_path, f"the VecNormalize statistics (no {sibling.name})")
+        return attach(load_pickle(pickle_path))
+    content = read_normalizer_json(sibling)
+
+    def wrap(venv: Any) -> Any:
+        normalizer = VecNormalize(
+            venv, norm_obs=content["norm_obs"], norm_reward=content["norm_reward"],
+            clip_obs=content["clip_obs"], clip_reward=content["clip_reward"],
+            gamma=content["gamma"], epsilon=content["epsilon"],
+        )  # fmt: skip
+        for name in ("obs_rms", "ret_rms"):
+            rms, saved = getattr(normalizer, name), content[name]
+            rms.mean = np.asarray(saved["mean"], dtype=np.float64).reshape(rms.mean.shape)
+            rms.var = np.asarray(saved["var"], dtype=np.float64).reshape(rms.var.shape)
+            rms.count = float(saved["count"])
+        return normalizer
+
+    return wrap
+
+
+def attach(normalizer: Any) -> Callable[[Any], Any]:
+    """``training_normalizer``'s form for an unpickled VecNormalize."""
+
+    def wrap(venv: Any) -> Any:
+        normalizer.set_venv(venv)
+        return normalizer
+
+    return wrap
+
+
+def _trusted_class(path: Path, key: str, entry: dict[str, Any]) -> type:
+    module_name = str(entry.get("__module__", ""))
+    match = _CLASS_NAME.match(str(entry.get("__init__", "")))
+    if not match or not module_name.startswith(TRUSTED_MODULES):
+        raise UntrustedPickle(path, f"its {key} ({module_name or 'an unnamed class'})")
+    try:
+        found = getattr(importlib.import_module(module_name), match.group(1))
+    except (ImportError, AttributeError) as error:
+        raise UsageError(f"{path}: its {key} {module_name}.{match.group(1)} is not installed "
+                         f"here ({error})") from error  # fmt: skip
+    return found
+
+
+def _space(path: Path, key: str, entry: dict[str, Any]) -> spaces.Space:
+    """A Box or Discrete from the readable fields SB3 writes beside the pickled space."""
+    kind = str(entry.get(":type:", ""))
+    try:
+        if kind.endswith("spaces.discrete.Discrete'>"):
+            return spaces.Discrete(int(entry["n"]), start=int(entry.get("start", 0)))
+        if kind.endswith("spaces.box.Box'>"):
+            stored = entry["_shape"]
+            shape = tuple(
+                int(n) for n in (json.loads(stored) if isinstance(stored, str) else stored)
+            )
+            dtype = np.dtype(entry["dtype"])
+
+            def bound(text: str) -> np.ndarray:
+                if "..." in text:  # numpy summarized a large array: the values are lost
+                    raise ValueError("summarized bounds")
+                values = text.replace("[", " ").replace("]", " ").split()
+                return np.array(values, dtype=np.float64).astype(dtype).reshape(shape)
+
+            return spaces.Box(bound(entry["low"]), bound(entry["high"]), shape, dtype)
+    except (KeyError, ValueError, TypeError):
+        pass
+    raise UntrustedPickle(path, f"its {key} ({kind or 'an unknown space'})")
+
+
+_CLASS_REPR = re.compile(r"^<class '([\w.]+)\.(\w+)'>$")
+# Modules whose classes policy_kwargs may name (activations, optimizers).
+TRUSTED_KWARG_MODULES = ("torch.nn.", "torch.optim.")
+
+
+def _policy_kwargs(path: Path, entry: dict[str, Any]) -> dict[str, Any]:
+    """policy_kwargs from the readable copy SB3 writes beside the pickle: plain values as
+    they are, classes (``"<class 'torch.nn...Tanh'>"``) resolved among torch's own."""
+    rebuilt: dict[str, Any] = {}
+    for name, value in entry.items():
+        if name.startswith(":"):
+            continue
+        match = _CLASS_REPR.match(value) if isinstance(value, str) else None
+        if match and match.group(1).startswith(TRUSTED_KWARG_MODULES):
+            module = importlib.import_module(match.group(1))
+            rebuilt[name] = getattr(module, match.group(2))
+        elif isinstance(value, str) and value.startswith("<"):
+            raise UntrustedPickle(path, f"its policy_kwargs {name} ({value})")
+        else:
+            rebuilt[name] = value
+    return rebuilt
+
+
+def _constant_schedule(_: float) -> float:
+    return 0.0
+
+
+# Entries that only training reads: a run that trains from a model must set them itself.
+TRAINING_ONLY = ("learning_rate", "clip_range", "clip_range_vf", "train_freq", "action_noise")
+
+
+def safe_custom_objects(
+    path: Path, spaces_from: Any = None, training_kwargs: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """``custom_objects`` for ``load`` that leave no cloudpickled entry of ``data`` to unpickle.
+
+    ``spaces_from``: an env (or anything with the two spaces) whose spaces replace the
+    saved ones after a shape check, where the caller plays or trains on that env.
+    Schedules become a constant 0 and training-only state is dropped, which evaluation
+    never reads; ``training_kwargs`` (the hyperparameters of a run that trains from the
+    model) must then set every pickled ``TRAINING_ONLY`` entry, or it is refused rather
+    than silently trained with a placeholder.
+    """
+    from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (zipfile.BadZipFile, KeyError, ValueError, OSError) as error:
+        raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
+    if str(data.get("policy_class", {}).get("__module__", "")).startswith("sbx."):
+        raise UntrustedPickle(path, "an SBX model (its flax parameters are pickled)")
+    replaced: dict[str, Any] = {}
+    for key, entry in data.items():
+        if not (isinstance(entry, dict) and ":serialized:" in entry):
+            continue
+        if key in ("policy_class", "replay_buffer_class", "rollout_buffer_class"):
+            replaced[key] = _trusted_class(path, key, entry)
+        elif key in ("observation_space", "action_space"):
+            replaced[key] = _space(path, key, entry)
+        elif key in ("lr_schedule", "learning_rate", "clip_range", "clip_range_vf"):
+            replaced[key] = _constant_schedule
+        elif key == "policy_kwargs":
+            replaced[key] = _policy_kwargs(path, entry)
+        elif key == "target_entropy":  # TQC's numpy float: "auto", -dim(actions), below
+            replaced[key] = None
+        elif key == "train_freq":
+            replaced[key] = TrainFreq(1, TrainFrequencyUnit.STEP)
+        elif key in ("_last_obs", "_last_episode_starts", "_last_original_obs", "action_noise",
+                     "ep_info_buffer", "ep_success_buffer", "_last_lstm_states"):  # fmt: skip
+            replaced[key] = None
+        else:
+            raise UntrustedPickle(path, f"its data entry {key!r}")
+        if training_kwargs is not None and key in TRAINING_ONLY and key not in training_kwargs:
+            raise UsageError(
+                f"{path}: its {key} is a pickle (loading it can run code from the file): set "
+                f"it with --hyperparams {key}=..., or pass {TRUST_FLAG} to load it"
+            )
+    if "target_entropy" in replaced and "action_space" in replaced:
+        action_dims = np.prod(replaced["action_space"].shape)
+        replaced["target_entropy"] = float(-action_dims.astype(np.float32))
+    if spaces_from is not None:
+        for key in ("observation_space", "action_space"):
+            mine = getattr(spaces_from, key)
+            saved = replaced.get(key)
+            if saved is not None and saved.shape != mine.shape:  # the caller names the env
+                raise ValueError(f"the model's {key} is {saved}, the env's {mine}")
+            replaced[key] = mine
+    return replaced
+
+
+def load_sb3_model(
+    cls: type, path: Path, trust_pickle: bool = False, training: bool = False, **kwargs: Any
+) -> Any:
+    """``cls.load`` that runs no code from the zip unless ``trust_pickle``; ``training``:
+    the caller trains on, with ``kwargs`` as its hyperparameters."""
+    from minitaur_env.training.algorithms import load_model
+
+    if not trust_pickle:
+        custom = safe_custom_objects(path, kwargs.get("env"), kwargs if training else None)
+        kwargs["custom_objects"] = {**custom, **kwargs.get("custom_objects", {})}
+    return load_model(cls, path, **kwargs)

@@ -1,0 +1,190 @@
+"""No loader runs code from a model file, its statistics or its replay buffer by default.
+
+Each booby-trapped file writes a marker file when it is unpickled and then behaves like
+the real thing, so that only the marker tells whether its code ran.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import pickle
+import shutil
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from minitaur_env.training import UsageError
+from minitaur_env.training.evaluation import load_policy
+from minitaur_env.training.safe_load import UntrustedPickle, safe_custom_objects
+from tests.scripts import TINY, error_lines, run_script
+
+FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
+
+
+class Trap:
+    """Unpickles by writing ``marker``, then evaluating to ``then`` (Python source)."""
+
+    def __init__(self, marker: Path, then: str) -> None:
+        self.code = f"(__import__('pathlib').Path({str(marker)!r}).write_text('ran'), {then})[1]"
+
+    def __reduce__(self):
+        return (eval, (self.code,))
+
+
+def trap_zip(model: Path, marker: Path, key: str = "lr_schedule") -> None:
+    """Replace (or add) the cloudpickled ``key`` of the zip's data by a trap."""
+    then = "(lambda _: 0.0)" if key == "lr_schedule" else "0"
+    payload = base64.b64encode(pickle.dumps(Trap(marker, then))).decode()
+    with zipfile.ZipFile(model) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    data = json.loads(members["data"])
+    data[key] = {":type:": "<class 'function'>", ":serialized:": payload}
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(model, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+
+
+def trap_pickle(path: Path, marker: Path) -> None:
+    """Replace a pickle by one that writes the marker and then returns the original."""
+    original = path.read_bytes()
+    path.write_bytes(pickle.dumps(Trap(marker, f"__import__('pickle').loads({original!r})")))
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("trained")
+    result = run_script(
+        "train.py", "-n", "120", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0", *TINY,
+        cwd=root,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
+
+
+@pytest.fixture
+def run(trained: Path, tmp_path: Path) -> Path:
+    """A fresh copy of the run folder, to booby-trap."""
+    copy = tmp_path / "downloaded" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(trained, copy)
+    return copy
+
+
+def evaluate(*args: str, cwd: Path):
+    return run_script("evaluate.py", *args, "--episodes", "1", "--env-kwargs",
+                      "max_episode_steps=20", cwd=cwd)  # fmt: skip
+
+
+def test_run_folders_carry_pickle_free_statistics_that_act_as_the_pickle(trained):
+    stats = trained / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
+    assert stats.with_suffix(".json").is_file()
+    safe = load_policy(trained / "MinitaurBulletEnv-v0.zip", device="cpu")
+    trusted = load_policy(trained / "MinitaurBulletEnv-v0.zip", device="cpu", trust_pickle=True)
+    obs = np.random.default_rng(0).normal(scale=5, size=(20, 28)).astype(np.float32)
+    for o in obs:
+        np.testing.assert_array_equal(safe.act(o), trusted.act(o))
+
+
+def test_evaluate_runs_no_code_from_a_zip_entry_without_the_flag(run, tmp_path):
+    marker = tmp_path / "ran-zip"
+    model = run / "MinitaurBulletEnv-v0.zip"
+    trap_zip(model, marker)  # an entry evaluation replaces anyway: it loads, safely
+    played = evaluate("--model", str(model), cwd=tmp_path)
+    assert played.returncode == 0, played.stderr
+    assert not marker.exists()
+    trap_zip(model, marker, key="booby")  # an entry nobody knows: refused in one line
+    refused = evaluate("--model", str(model), cwd=tmp_path)
+    assert refused.returncode == 2 and not marker.exists()
+    assert error_lines(refused) == [
+        f"evaluate.py: error: {model}: loading its data entry 'booby' would unpickle it, and "
+        "a pickle can run code from the file; pass --trust-pickle if you trust where it came "
+        "from"
+    ]
+    trusted = evaluate("--model", str(model), "--trust-pickle", cwd=tmp_path)
+    assert trusted.returncode == 0, trusted.stderr
+    assert marker.read_text() == "ran"  # the flag is what lets it run
+
+
+def test_evaluate_needs_the_flag_for_statistics_without_their_json(run, tmp_path):
+    marker = tmp_path / "ran-stats"
+    stats = run / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
+    stats.with_suffix(".json").unlink()
+    trap_pickle(stats, marker)
+    refused = evaluate("--model", str(run / "MinitaurBulletEnv-v0.zip"), cwd=tmp_path)
+    assert refused.returncode == 2 and not marker.exists()
+    (line,) = error_lines(refused)
+    assert str(stats) in line and "--trust-pickle" in line
+    trusted = evaluate("--model", str(run / "MinitaurBulletEnv-v0.zip"), "--trust-pickle",
+                       cwd=tmp_path)  # fmt: skip
+    assert trusted.returncode == 0, trusted.stderr
+    assert marker.read_text() == "ran"
+
+
+def test_training_from_a_model_starts_an_empty_buffer_and_loads_no_pickle(run, tmp_path):
+    marker = tmp_path / "ran-train"
+    model = run / "MinitaurBulletEnv-v0.zip"
+    trap_zip(model, marker)
+    buffer = run / "replay_buffer.pkl"  # where the zoo keeps one beside a model
+    buffer.write_bytes(pickle.dumps(Trap(marker, "None")))
+    args = ["-i", str(model), "-n", "60", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0"]
+    started = run_script("train.py", *args, *TINY, cwd=tmp_path)
+    assert started.returncode == 0, started.stderr
+    assert not marker.exists()
+    assert f"{buffer} is a pickle (it can run code): starting with an empty replay buffer" in (
+        started.stdout + started.stderr
+    )
+    # The statistics without their JSON: refused in one line, then loaded with the flag.
+    stats = run / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
+    stats.with_suffix(".json").unlink()
+    refused = run_script("train.py", *args, *TINY, cwd=tmp_path)
+    assert refused.returncode == 2 and not marker.exists()
+    assert "--trust-pickle" in error_lines(refused)[-1] and str(stats) in refused.stderr
+    buffer.unlink()
+    trap_pickle(stats, marker)
+    trusted = run_script("train.py", *args, "--trust-pickle", *TINY, cwd=tmp_path)
+    assert trusted.returncode == 0, trusted.stderr
+    assert marker.read_text() == "ran"  # the flag is what lets it run
+
+
+def test_training_on_needs_the_pickled_schedule_set_not_silently_zero(tmp_path):
+    import gymnasium as gym
+    from stable_baselines3 import SAC
+
+    model = SAC("MlpPolicy", gym.make("Pendulum-v1"), learning_rate=lambda f: 1e-3 * f)
+    model.save(tmp_path / "m.zip")
+    # Evaluation never steps an optimizer: the schedule is dropped, nothing is unpickled.
+    assert safe_custom_objects(tmp_path / "m.zip")["learning_rate"](1.0) == 0.0
+    # A run that trains on must set it rather than train at a placeholder rate.
+    with pytest.raises(UsageError, match=r"its learning_rate is a pickle.*--hyperparams "):
+        safe_custom_objects(tmp_path / "m.zip", training_kwargs={"train_freq": 1})
+    with pytest.raises(UntrustedPickle, match="its policy_class"):  # not a library's class
+        data = json.loads(zipfile.ZipFile(tmp_path / "m.zip").read("data"))
+        data["policy_class"]["__module__"] = "evil.policies"
+        with zipfile.ZipFile(tmp_path / "evil.zip", "w") as archive:
+            archive.writestr("data", json.dumps(data))
+        safe_custom_objects(tmp_path / "evil.zip")
+
+
+def test_packaging_runs_no_code_from_the_files(run, tmp_path):
+    pytest.importorskip("huggingface_hub")
+    marker = tmp_path / "ran-package"
+    model = run / "MinitaurBulletEnv-v0.zip"
+    trap_zip(model, marker)
+    stats = run / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
+    trap_pickle(stats, marker)  # its JSON sibling is what packaging reads
+    package = ["-m", "minitaur_env.package", str(model), "-o", str(tmp_path / "hub"),
+               "--episodes", "1", "--video-steps", "10"]  # fmt: skip
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, *package], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert not marker.exists()
+    folder = tmp_path / "hub" / "sac-MinitaurBulletEnv-v0"
+    assert (folder / "vec_normalize.json").is_file() and (folder / "policy.onnx").is_file()
+    card = (folder / "README.md").read_text()
+    assert "## Loading models safely" in card and "--trust-pickle" in card
