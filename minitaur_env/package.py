@@ -4,8 +4,10 @@
     python -m minitaur_env.package pretrained/sac/MinitaurBulletEnv-v0_1/best_model.zip -o hub
 
 writes ``<out>/<algo>-<env>/``: the model zip, config.yml, env_kwargs.yml,
-vec_normalize.pkl, results.json (20 unseen episodes), replay.mp4 and a README.md model
-card, the layout of rl-baselines3-zoo's push_to_hub. Push it yourself, e.g.
+vec_normalize.pkl and its pickle-free vec_normalize.json, policy.onnx (the deterministic
+actor, normalization folded in), results.json (20 unseen episodes), replay.mp4 and a
+README.md model card, the layout of rl-baselines3-zoo's push_to_hub. Nothing is unpickled
+unless --trust-pickle. Push it yourself, e.g.
 ``huggingface-cli upload <user>/sac-MinitaurBulletEnv-v0 hub/sac-MinitaurBulletEnv-v0``.
 """
 
