@@ -27,7 +27,12 @@ from minitaur_env.training.evaluation import (
     run_episodes,
     summarize,
 )
-from minitaur_env.training.run_folder import HUB_VECNORMALIZE, RunFolder, zoo_hyperparams
+from minitaur_env.training.run_folder import (
+    HUB_VECNORMALIZE,
+    ONNX_POLICY,
+    RunFolder,
+    zoo_hyperparams,
+)
 from minitaur_env.training.safe_load import copy_statistics
 
 
@@ -69,7 +74,7 @@ def package_for_hub(
     config = run_config(policy.path)
     (folder / "config.yml").write_text(yaml.safe_dump(zoo_hyperparams(config)))
     (folder / "env_kwargs.yml").write_text(yaml.safe_dump(policy.env_kwargs))
-    export_onnx(policy.path, folder / ONNX_NAME, trust_pickle)
+    export_onnx(policy.path, folder / ONNX_POLICY, trust_pickle)
 
     # Judged on the registered episode length, whatever the training run used.
     env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
@@ -100,9 +105,6 @@ def package_for_hub(
         env.close()
     _model_card(policy, env_id, folder, config, results).save(folder / "README.md")
     return folder
-
-
-ONNX_NAME = "policy.onnx"
 
 
 def _commands(training: dict) -> list[str]:
@@ -201,7 +203,7 @@ for _ in range(1000):
 With minitaur-env's scripts: `python evaluate.py --model {name}.zip --episodes 20`
 (it finds `vec_normalize.pkl` beside the zip).
 
-## Without torch: `{ONNX_NAME}`
+## Without torch: `{ONNX_POLICY}`
 
 The deterministic actor with the observation normalization folded in: raw float32
 observations in (`obs`, shape (batch, {obs_dim})), actions in env units out.
@@ -209,11 +211,11 @@ observations in (`obs`, shape (batch, {obs_dim})), actions in env units out.
 
 ```python
 import onnxruntime as ort
-session = ort.InferenceSession("{ONNX_NAME}")
+session = ort.InferenceSession("{ONNX_POLICY}")
 action = session.run(None, {{"obs": obs[None].astype("float32")}})[0][0]
 ```
 
-or `python evaluate.py --model {ONNX_NAME}` with `pip install 'minitaur-env[onnx]'`.
+or `python evaluate.py --model {ONNX_POLICY}` with `pip install 'minitaur-env[onnx]'`.
 
 ## Loading models safely
 
@@ -223,7 +225,7 @@ files from a source you trust. minitaur-env's own loaders (`evaluate.py`,
 `python -m minitaur_env.package`, `train.py -i`) unpickle nothing by default: they
 rebuild the zip's entries from their readable copies, load its tensors weights-only and
 read the statistics from `vec_normalize.json`; `--trust-pickle` is the opt-in for files
-without such a copy. `{ONNX_NAME}` holds weights and operators and runs no code of its own.
+without such a copy. `{ONNX_POLICY}` holds weights and operators and runs no code of its own.
 
 ## Training
 

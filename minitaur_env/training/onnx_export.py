@@ -99,10 +99,7 @@ class DeterministicActor(nn.Module):
 
 def _head(loaded: LoadedPolicy) -> str:
     policy = loaded.model.policy
-    if (
-        getattr(loaded.model, "lstm_hidden_state_shape", None)
-        or "Recurrent" in type(policy).__name__
-    ):
+    if "Recurrent" in type(policy).__name__:  # sb3-contrib's RecurrentActorCriticPolicy
         raise UsageError(f"{loaded.path}: recurrent policies do not export to ONNX")
     if loaded.algo in ("sac", "tqc", "crossq"):
         return "squashed_gaussian"

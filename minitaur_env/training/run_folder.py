@@ -14,6 +14,7 @@ import yaml
 
 from minitaur_env.training import UsageError
 
+ONNX_POLICY = "policy.onnx"  # the deterministic actor, in shipped and Hub folders
 HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's push_to_hub)
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
@@ -184,7 +185,7 @@ class RunFolder:
     @property
     def onnx_policy(self) -> Path:
         """The deterministic actor as ONNX (python -m minitaur_env.onnx), where shipped."""
-        return self.path / "policy.onnx"
+        return self.path / ONNX_POLICY
 
     @property
     def learning_curve(self) -> Path:
