@@ -10,9 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from minitaur_env.training import ALGORITHM_NAMES, OneLineErrorParser, missing_dependency
-
-DEFAULT_ENV = "MinitaurBulletEnv-v0"
+from minitaur_env.training import ALGORITHM_NAMES, DEFAULT_ENV, OneLineErrorParser, commands
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -74,13 +72,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    try:
-        from minitaur_env.training.evaluation import evaluate_from_args
-    except ModuleNotFoundError as error:  # the env-only install: no yaml, imageio, ...
-        sys.exit(missing_dependency("evaluate.py", error))
-
-    return evaluate_from_args(args, DEFAULT_ENV)
+    return commands.evaluate(parse_args(argv))
 
 
 if __name__ == "__main__":

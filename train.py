@@ -17,12 +17,8 @@ import sys
 from minitaur_env.training import OneLineErrorParser, missing_dependency
 
 try:
-    from minitaur_env.training.cli import (
-        add_experiment_arguments,
-        given_flags,
-        suppress_defaults,
-        train_from_args,
-    )
+    from minitaur_env.training import commands
+    from minitaur_env.training.cli import add_experiment_arguments, given_flags, suppress_defaults
     from minitaur_env.training.envs import VEC_ENVS
     from minitaur_env.training.progress import PROGRESS_MODES
 except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
@@ -83,7 +79,7 @@ def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser().parse_args(argv)
-    return train_from_args(args, given_flags(build_parser, argv))
+    return commands.train(args, argv, given_flags(build_parser, argv))
 
 
 if __name__ == "__main__":

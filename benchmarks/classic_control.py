@@ -68,7 +68,7 @@ def main() -> int:
             if run_task(args, algo, env_id, threshold, freq) != 0:
                 print(f"{algo} on {env_id}: the sweep failed", file=sys.stderr)
 
-    from minitaur_env.training.sweeps import summarize
+    from minitaur_env.training.sweep_summary import summarize
 
     print(
         "\n| task | algo | threshold | seeds reaching it | env steps to it, per seed | "

@@ -4,7 +4,7 @@ Baselines, measured in this same run:
 - the physics-only bound: the time of the bare ``stepSimulation`` calls of each env step
   (5 per step at the default settings), timed inside the very same rollout;
 - the classic ``pybullet_envs`` MinitaurBulletEnv from the pybullet wheel, when it can be
-  imported (it needs ``pip install gym==0.26.2 'setuptools<70'``);
+  imported (it needs ``pip install gym==0.26.2 'setuptools>=77.0.3,<81'``);
 - for the vectorized figures, one env stepped in the main process (the same monitored
   env that SB3's ``make_vec_env`` builds), and two bare physics loops in two processes
   (how far two cores scale at all).
@@ -77,7 +77,10 @@ def load_classic_env_class():
         with contextlib.redirect_stdout(io.StringIO()):
             from pybullet_envs.bullet.minitaur_gym_env import MinitaurBulletEnv as Classic
     except Exception as error:  # gym or pkg_resources missing
-        return None, f"{type(error).__name__}: {error} (pip install gym==0.26.2 'setuptools<70')"
+        return (
+            None,
+            f"{type(error).__name__}: {error} (pip install gym==0.26.2 'setuptools>=77.0.3,<81')",
+        )
     return Classic, ""
 
 

@@ -20,9 +20,9 @@ from minitaur_env.training.run_folder import RunFolder
 
 def run_folders(path: Path) -> list[RunFolder]:
     """The run folder at ``path``, or those of a sweep trial folder (``<algo>/<env>_N``)."""
-    if (path / "config.yml").is_file():
+    if RunFolder.is_run(path):
         return [RunFolder(path)]
-    return [RunFolder(config.parent) for config in sorted(path.glob("*/*/config.yml"))]
+    return RunFolder.found_under(path)
 
 
 def keep(run: RunFolder, destination: Path) -> None:

@@ -21,12 +21,12 @@ import argparse
 import re
 import subprocess
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from minitaur_env.training.aggregate import GroupSummary, RunCurve, format_rows, iqm_with_ci
+from minitaur_env.training.aggregate import GroupSummary, RunCurve, format_rows
+from minitaur_env.training.plotting import figure, save_figure
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -47,20 +47,11 @@ def train(args: argparse.Namespace, seed: int, extra: list[str]) -> Path:
 
 def plot(groups: list[GroupSummary], path: Path, threshold: float) -> None:
     """IQM over seeds with its 95 % CI band, against env steps and against minutes."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (by_steps, by_time) = plt.subplots(1, 2, figsize=(12, 4.5), dpi=100)
+    fig, (by_steps, by_time) = figure(2, figsize=(12, 4.5))
     for group in groups:
-        grid = np.unique(np.concatenate([c.steps for c in group.curves]))
-        stats = np.array([iqm_with_ci([c.at(int(s)) for c in group.curves], 500) for s in grid])
-        with warnings.catch_warnings():  # steps after every run's last logged episode: NaN
-            warnings.simplefilter("ignore", RuntimeWarning)
-            minutes = np.nanmedian([np.interp(grid, c.steps, c.seconds) for c in group.curves], 0)
+        grid, stats = group.iqm_curve()
         label = f"{group.name} ({len(group.curves)} seeds)"
-        for ax, x in ((by_steps, grid), (by_time, minutes / 60)):
+        for ax, x in ((by_steps, grid), (by_time, group.median_minutes(grid))):
             line = ax.plot(x, stats[:, 0], label=label)
             ax.fill_between(x, stats[:, 1], stats[:, 2], alpha=0.2, color=line[0].get_color())
     for ax, xlabel in ((by_steps, "env steps"), (by_time, "wall-clock (min), median run")):
@@ -69,8 +60,7 @@ def plot(groups: list[GroupSummary], path: Path, threshold: float) -> None:
         ax.set_ylabel("eval return: IQM over seeds, 95% CI")
         ax.grid(alpha=0.3)
     by_steps.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
     print(f"plot: {path}")
 
 

@@ -33,12 +33,12 @@ from pathlib import Path
 
 import numpy as np
 from learning import plot  # benchmarks/ is on the path of a script run from it
-from select_policy import judge
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
+from minitaur_env.training.files import atomic_path
 from minitaur_env.training.run_folder import RunFolder
-from minitaur_env.training.video import atomic_path
+from minitaur_env.training.shipping import judge
 
 RESULTS = Path(__file__).resolve().parent / "results"
 LIVE_REPORT = "final_model_report_live_actor.json"
@@ -183,9 +183,7 @@ def main() -> None:
     lines, groups, missing = [HEADER], [], []
     for label, spec in specs:
         pattern, live_actor = spec.removesuffix(LIVE), spec.endswith(LIVE)
-        runs = [
-            RunFolder(Path(p)) for p in sorted(glob(pattern)) if Path(p, "config.yml").is_file()
-        ]
+        runs = [RunFolder(Path(p)) for p in sorted(glob(pattern)) if RunFolder.is_run(p)]
         if not runs:
             missing.append(f"{label} ({pattern})")
             continue

@@ -19,10 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from select_policy import judge  # benchmarks/ is on the path of a script run from it
-
 from minitaur_env import RANDOMIZED_KWARGS
 from minitaur_env.training.evaluation import pretrained_models
+from minitaur_env.training.shipping import judge
 
 ENV_ID = "MinitaurBulletEnv-v0"
 CONDITIONS: dict[str, dict[str, Any]] = {

@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from minitaur_env.training import OneLineErrorParser, UsageError, missing_dependency
+from minitaur_env.training import OneLineErrorParser, commands
 
 PROGRAM = "python -m minitaur_env.onnx"
 
@@ -33,24 +33,7 @@ def main(argv: list[str] | None = None) -> int:
         "--trust-pickle", action="store_true",
         help="load pickles in or beside the model (they can run code: trusted files only)",
     )  # fmt: skip
-    args = parser.parse_args(argv)
-    try:
-        from minitaur_env.training.onnx_export import export_onnx
-    except ModuleNotFoundError as error:
-        print(missing_dependency(PROGRAM, error) + " plus onnx and onnxscript", file=sys.stderr)
-        return 1
-    try:
-        info = export_onnx(args.run_or_model, args.output, args.trust_pickle)
-    except UsageError as error:
-        print(f"{PROGRAM}: error: {error}", file=sys.stderr)
-        return 2
-    size = args.output.stat().st_size / 1024
-    print(
-        f"{args.output}: {info['algo']} actor for {info['env_id']}, {size:.0f} KiB, "
-        f"observation normalization {info['observation_normalization']}; "
-        f"largest action difference from predict {info['max_abs_difference']:.1e}"
-    )
-    return 0
+    return commands.export_onnx(parser.parse_args(argv), PROGRAM)
 
 
 if __name__ == "__main__":

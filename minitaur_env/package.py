@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from minitaur_env.training import OneLineErrorParser, UsageError
+from minitaur_env.training import OneLineErrorParser, commands
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,23 +38,7 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="load pickles in or beside the model (they can run code: trusted files only)",
     )
-    args = parser.parse_args(argv)
-    try:
-        from minitaur_env.training.hub import package_for_hub
-
-        folder = package_for_hub(
-            args.run_or_model, args.out, args.env, args.episodes, args.seed, args.video_steps,
-            args.trust_pickle,
-        )  # fmt: skip
-    except UsageError as error:
-        print(f"minitaur_env.package: error: {error}", file=sys.stderr)
-        return 2
-    except ImportError as error:
-        print(f"minitaur_env.package: error: {error} (pip install 'minitaur-env[zoo]')",
-              file=sys.stderr)  # fmt: skip
-        return 2
-    print(f"hub folder: {folder}")
-    return 0
+    return commands.package(parser.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from minitaur_env.training import OneLineErrorParser, UsageError, missing_dependency
+from minitaur_env.training import OneLineErrorParser, UsageError, commands, missing_dependency
 
 try:
     from minitaur_env.training.cli import add_experiment_arguments
@@ -67,11 +67,10 @@ SWEEP_MODULES = ("ray", "optuna", "rliable", "arch", "pandas")  # the ray extra
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
     args = parse_args(argv)
     try:
-        from minitaur_env.training.sweeps import run_sweep_from_args
-
-        return run_sweep_from_args(args)
+        return commands.sweep(args, argv)
     except ModuleNotFoundError as error:
         if error.name not in SWEEP_MODULES:
             raise

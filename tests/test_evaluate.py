@@ -14,7 +14,7 @@ import yaml
 from stable_baselines3 import PPO
 
 from minitaur_env.training.video import read_video
-from tests.scripts import TINY, error_lines, run_script
+from tests.scripts import TINY, error_lines, needs, run_script
 
 SHORT = ["--env-kwargs", "max_episode_steps=30"]
 
@@ -92,7 +92,7 @@ def test_zoo_style_model_selection(workdir, selection, expected):
 
 @pytest.mark.parametrize("load_best", [False, True])
 def test_the_zoo_plays_our_run_folders(workdir, load_best):
-    pytest.importorskip("rl_zoo3")
+    needs("rl_zoo3")
     result = subprocess.run(
         [sys.executable, "-m", "rl_zoo3.enjoy", "-f", "logs", "--algo", "sac",
          "--env", "MinitaurBulletEnv-v0", "--gym-packages", "minitaur_env", "--no-render",
@@ -108,7 +108,7 @@ def test_the_zoo_plays_our_run_folders(workdir, load_best):
 
 
 def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
-    pytest.importorskip("rl_zoo3")
+    needs("rl_zoo3")
     result = subprocess.run(
         [sys.executable, "-m", "minitaur_env.zoo", "record_video", "-f", "logs",
          "--algo", "sac", "--env", "MinitaurBulletEnv-v0", "-n", "20", "-o", "zoo-videos"],
@@ -126,7 +126,7 @@ def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
 
 
 def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, best_model):
-    hub = pytest.importorskip("huggingface_hub")
+    hub = needs("huggingface_hub")
     result = subprocess.run(
         [sys.executable, "-m", "minitaur_env.package", str(best_model.parent), "-o", "hub",
          "--episodes", "2", "--video-steps", "20"],

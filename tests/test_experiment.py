@@ -23,9 +23,10 @@ from minitaur_env.training import (
 from minitaur_env.training import experiment as experiment_module
 from minitaur_env.training.aggregate import wall_clock_at
 from minitaur_env.training.algorithms import load_model
-from minitaur_env.training.callbacks import save_checked_checkpoint
+from minitaur_env.training.checkpoints import save_checked_checkpoint
+from minitaur_env.training.files import load_pickle
 from minitaur_env.training.hyperparams import load_hyperparams
-from minitaur_env.training.run_folder import load_pickle
+from tests.scripts import needs
 
 SMALL_SAC = {
     "learning_starts": 20, "buffer_size": 2000, "batch_size": 16, "train_freq": 1,
@@ -203,7 +204,6 @@ def test_divergence_is_told_by_type_not_by_words_in_the_message(tmp_path):
 def test_resume_skips_torn_checkpoints_without_building_envs_for_them(tmp_path, monkeypatch):
     run = pendulum(tmp_path, n_timesteps=150, save_freq=50).run().run
     run.checkpoint(150).write_bytes(b"torn")
-    run.replay_buffer(100).write_bytes(b"torn too")
     built = []
     original = experiment_module.make_training_env
     monkeypatch.setattr(
@@ -213,8 +213,24 @@ def test_resume_skips_torn_checkpoints_without_building_envs_for_them(tmp_path, 
     )
     resumed = Experiment.resume(run.path, n_timesteps=160, verbose=0, log=lambda *a, **k: None)
     result = resumed.run()
-    assert resumed.resumed_at == 50 and result.num_timesteps == 160
+    assert resumed.resumed_at == 100 and result.num_timesteps == 160
     assert len(built) == 1
+
+
+def test_resume_never_goes_on_with_an_empty_replay_buffer(tmp_path):
+    run = pendulum(tmp_path, n_timesteps=150, save_freq=50).run().run
+    run.replay_buffer(150).unlink()  # a kill between the model and its buffer
+    said = []
+    resumed = Experiment.resume(run.path, n_timesteps=160, log=lambda *a, **k: said.append(a[0]))
+    resumed.run()
+    assert resumed.resumed_at == 100  # the newest checkpoint that has its buffer
+    assert resumed.model.replay_buffer.size() > 0
+    assert any("rl_model_150_steps.zip: its replay buffer is missing" in line for line in said)
+    # with no complete checkpoint left, one line, not an empty buffer
+    for _, buffer in run.replay_buffers():
+        buffer.unlink()
+    with pytest.raises(UsageError, match=r"no complete checkpoint .*replay buffer"):
+        Experiment.resume(run.path, n_timesteps=170, log=lambda *a, **k: None).build()
 
 
 def test_config_resolves_entries_and_rejects_bad_values():
@@ -264,7 +280,7 @@ def _policy_weights(model) -> np.ndarray:
 @pytest.mark.parametrize(("algo", "backend"), [("sac", "sb3"), ("sac", "sbx"), ("tqc", "sbx")])
 def test_the_seed_decides_the_run_on_every_backend(tmp_path, algo, backend):
     if backend == "sbx":
-        pytest.importorskip("sbx")
+        needs("sbx")
 
     def trained(seed):
         config = ExperimentConfig.resolve(
@@ -284,8 +300,8 @@ def test_the_seed_decides_the_run_on_every_backend(tmp_path, algo, backend):
 
 
 def test_sbx_weights_are_checked_too():
-    sbx = pytest.importorskip("sbx")
-    from minitaur_env.training.callbacks import check_weights, weights_finite
+    sbx = needs("sbx")
+    from minitaur_env.training.checkpoints import check_weights, weights_finite
 
     model = sbx.SAC("MlpPolicy", "Pendulum-v1", policy_kwargs={"net_arch": [8]}, seed=0)
     assert weights_finite(model)

@@ -15,7 +15,7 @@ from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.export import sbx_to_sb3
-from tests.scripts import TINY, run_script
+from tests.scripts import TINY, needs, run_script
 
 
 def _jax_critic_outputs(model, obs: np.ndarray, actions: np.ndarray) -> list[np.ndarray]:
@@ -30,7 +30,7 @@ def _jax_critic_outputs(model, obs: np.ndarray, actions: np.ndarray) -> list[np.
 
 @pytest.mark.parametrize("algo", ["SAC", "TQC"])
 def test_sbx_model_exports_to_sb3_with_the_same_actions_and_critic_outputs(algo):
-    sbx = pytest.importorskip("sbx")
+    sbx = needs("sbx")
     env = make_env("MinitaurBulletEnv-v0")
     model = getattr(sbx, algo)("MlpPolicy", env, seed=3, policy_kwargs={"net_arch": [64, 64]})
     exported = sbx_to_sb3(model, env)
@@ -53,7 +53,7 @@ def test_sbx_model_exports_to_sb3_with_the_same_actions_and_critic_outputs(algo)
 
 
 def test_other_sbx_algorithms_are_refused_by_name():
-    sbx = pytest.importorskip("sbx")
+    sbx = needs("sbx")
     env = make_env("MinitaurBulletEnv-v0")
     with pytest.raises(ValueError, match="not TD3"):
         sbx_to_sb3(sbx.TD3("MlpPolicy", env, seed=0, policy_kwargs={"net_arch": [8]}), env)
@@ -61,7 +61,7 @@ def test_other_sbx_algorithms_are_refused_by_name():
 
 
 def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(tmp_path):
-    sbx = pytest.importorskip("sbx")
+    sbx = needs("sbx")
     hyperparams = ["learning_starts=50", "buffer_size=5000", "batch_size=32",
                    "policy_kwargs={net_arch: [16]}"]  # fmt: skip
     trained = run_script(
@@ -73,7 +73,7 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     run = tmp_path / "logs" / "tqc" / "MinitaurBulletEnv-v0_1"
     shipped = tmp_path / "pretrained" / "tqc" / "MinitaurBulletEnv-v0_1"
     selected = run_script(
-        "benchmarks/select_policy.py", str(run), "--from-steps", "200", "--episodes", "1",
+        "-m", "minitaur_env.ship", str(run), "--from-steps", "200", "--episodes", "1",
         "--select-episodes", "2", "--json", "report.json", "--ship", str(shipped),
         "--trust-pickle", cwd=tmp_path,  # an SBX model is a pickle; this test trained it
     )  # fmt: skip
@@ -107,9 +107,9 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     assert provenance["eval_mean_return"] == round(shown["summary"]["return"]["mean"], 3)
 
 
-def test_select_policy_refuses_zero_selection_episodes_in_one_line(tmp_path):
+def test_ship_refuses_zero_selection_episodes_in_one_line(tmp_path):
     refused = run_script(
-        "benchmarks/select_policy.py", str(tmp_path), "--select-episodes", "0",
+        "-m", "minitaur_env.ship", str(tmp_path), "--select-episodes", "0",
         "--json", "report.json", cwd=tmp_path,
     )  # fmt: skip
     assert refused.returncode == 2

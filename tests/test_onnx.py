@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,9 +15,9 @@ import pytest
 from minitaur_env.onnx_policy import OnnxPolicy
 from minitaur_env.training.evaluation import PRETRAINED_DIR, load_policy
 from minitaur_env.training.single_env import make_env
-from tests.scripts import REPO, error_lines
+from tests.scripts import REPO, error_lines, needs
 
-onnxruntime = pytest.importorskip("onnxruntime")
+onnxruntime = needs("onnxruntime")
 SHIPPED = sorted(PRETRAINED_DIR.glob("*/*/MinitaurBulletEnv-v0.zip"))
 EXPORT = [sys.executable, "-m", "minitaur_env.onnx"]
 
@@ -160,11 +161,12 @@ def evaluate_without_torch(*args: str, cwd: Path) -> subprocess.CompletedProcess
 
 def test_evaluate_plays_an_onnx_policy_and_its_video_without_torch(tmp_path):
     shipped = PRETRAINED_DIR / "ppo" / "MinitaurBulletEnv-v0_1"
-    assert export(shipped, tmp_path / "policy.onnx").returncode == 0
+    # the shipped export (tests above check that exports agree with their zips)
+    shutil.copyfile(shipped / "policy.onnx", tmp_path / "policy.onnx")
     # The contacts are chaotic: an action difference of 1e-6 grows to a different gait
     # phase within 50 steps, yet returns stay close over 300 steps (within 1 % measured):
     # a missing or doubled normalization would not walk at all.
-    short = ["--episodes", "2", "--env-kwargs", "max_episode_steps=300"]
+    short = ["--episodes", "1", "--env-kwargs", "max_episode_steps=300"]
     played = evaluate_without_torch(
         "--model", "policy.onnx", *short, "--json", "onnx.json", "--render-video",
         "--video-episodes", "1", "-o", "videos/onnx.mp4", cwd=tmp_path,

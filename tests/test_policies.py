@@ -9,9 +9,9 @@ import torch
 from stable_baselines3 import SAC
 
 from minitaur_env.training import Experiment, ExperimentConfig, UsageError
-from minitaur_env.training.algorithms import load_model
-from minitaur_env.training.evaluation import infer_algo
+from minitaur_env.training.algorithms import infer_algo, load_model
 from minitaur_env.training.policies import POLICY_NAME, StabilizedSACPolicy
+from tests.scripts import needs
 
 SMALL = {"learning_starts": 30, "batch_size": 16, "buffer_size": 1000}
 
@@ -139,7 +139,7 @@ def test_the_policy_name_works_in_a_run_and_bad_values_are_one_line(tmp_path):
 
 
 def test_the_torch_policy_name_on_sbx_is_one_line_not_a_traceback(tmp_path):
-    pytest.importorskip("sbx")
+    needs("sbx")
     config = ExperimentConfig.resolve(
         "sac", "Pendulum-v1", n_timesteps=60, eval_freq=0, save_freq=0, vec_env="dummy",
         backend="sbx", hyperparams={**SMALL, "policy": POLICY_NAME},

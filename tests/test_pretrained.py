@@ -7,6 +7,7 @@ import yaml
 
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.evaluation import PRETRAINED_DIR, load_policy, pretrained_models
+from tests.scripts import needs
 
 SHIPPED = [path for _, path in pretrained_models()]
 
@@ -37,7 +38,7 @@ def test_shipped_policy_walks_forward_without_falling(path):
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.parent.parent.name for p in SHIPPED])
 def test_each_shipped_agent_has_a_hub_folder_that_agrees_with_its_provenance(path):
-    hub = pytest.importorskip("huggingface_hub")
+    hub = needs("huggingface_hub")
     provenance = yaml.safe_load((path.parent / "provenance.yml").read_text())
     name = f"{provenance['algo']}-{provenance['env']}"
     folder = PRETRAINED_DIR / "hub" / name

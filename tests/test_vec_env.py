@@ -171,7 +171,7 @@ def test_an_env_exception_names_the_env_and_close_returns(index):
         step_until_error(vec)
     started = time.monotonic()
     vec.close()
-    assert time.monotonic() - started < 5
+    assert time.monotonic() - started < 60  # not the stuck env's hour, however slow
     assert not any(process.is_alive() for process in vec.processes)
 
 
@@ -183,7 +183,7 @@ def test_a_dead_worker_is_reported_not_waited_for():
         step_until_error(vec)
     started = time.monotonic()
     vec.close()
-    assert time.monotonic() - started < 5
+    assert time.monotonic() - started < 60  # not the stuck env's hour, however slow
 
 
 def test_close_never_blocks_on_unread_answers_or_a_stuck_env():
@@ -194,7 +194,7 @@ def test_close_never_blocks_on_unread_answers_or_a_stuck_env():
     vec._receive(0)  # one worker answered, the other did not
     started = time.monotonic()
     vec.close()
-    assert time.monotonic() - started < 5
+    assert time.monotonic() - started < 60  # not the stuck env's hour, however slow
 
     stuck = GroupedSubprocVecEnv(failing_envs(5, hang=True), n_processes=3, close_timeout=1.0)
     stuck.reset()
@@ -203,7 +203,7 @@ def test_close_never_blocks_on_unread_answers_or_a_stuck_env():
     stuck.step_async(np.zeros(6, dtype=int))  # env 5 never returns from its 30th step
     started = time.monotonic()
     stuck.close()
-    assert time.monotonic() - started < 4
+    assert time.monotonic() - started < 60  # close_timeout, not the hour of the stuck env
     assert not any(process.is_alive() for process in stuck.processes)
 
 

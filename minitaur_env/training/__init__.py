@@ -10,6 +10,12 @@ from typing import NoReturn
 # The algorithms train.py offers (``algorithms.ALGORITHMS`` maps them to classes); named
 # here so that evaluate.py parses its flags without importing torch.
 ALGORITHM_NAMES = ("sac", "td3", "ppo", "a2c", "tqc", "crossq")
+DEFAULT_ENV = "MinitaurBulletEnv-v0"
+
+
+def env_name(env_id: str) -> str:
+    """The id without a module prefix (``my_pkg:MyEnv-v0`` -> ``MyEnv-v0``), for file names."""
+    return env_id.split(":")[-1]
 
 
 class OneLineErrorParser(argparse.ArgumentParser):
@@ -38,12 +44,14 @@ def missing_dependency(program: str, error: ModuleNotFoundError) -> str:
 
 _API = {
     "Experiment": "minitaur_env.training.experiment",
-    "ExperimentConfig": "minitaur_env.training.experiment",
-    "RunResult": "minitaur_env.training.experiment",
+    "ExperimentConfig": "minitaur_env.training.config",
+    "RunResult": "minitaur_env.training.results",
     "RunFolder": "minitaur_env.training.run_folder",
 }
 __all__ = [
     "ALGORITHM_NAMES",
+    "DEFAULT_ENV",
+    "env_name",
     "OneLineErrorParser",
     "TrainingDiverged",
     "UsageError",

@@ -146,6 +146,19 @@ class GroupSummary:
     milestones: Sequence[float] = (5.0, 15.0)
     unfinished: int = 0
 
+    def iqm_curve(self) -> tuple[np.ndarray, np.ndarray]:
+        """(steps, [IQM, CI low, CI high] per step) on every step any run evaluated at."""
+        grid = np.unique(np.concatenate([c.steps for c in self.curves]))
+        stats = np.array([iqm_with_ci([c.at(int(s)) for c in self.curves], reps=500) for s in grid])
+        return grid, stats
+
+    def median_minutes(self, steps: np.ndarray) -> np.ndarray:
+        """The runs' median wall-clock minutes at ``steps`` (NaN past every run's end)."""
+        with warnings.catch_warnings():  # steps after every run's last logged episode
+            warnings.simplefilter("ignore", RuntimeWarning)
+            seconds = [np.interp(steps, c.steps, c.seconds) for c in self.curves]
+            return np.nanmedian(seconds, axis=0) / 60
+
     def row(self) -> dict[str, object]:
         finals = [c.final for c in self.curves]
         bests = [c.best[0] for c in self.curves]
@@ -181,7 +194,7 @@ class GroupSummary:
 
 
 def write_csv(rows: list[dict[str, object]], path: Path) -> None:
-    from minitaur_env.training.video import atomic_path
+    from minitaur_env.training.files import atomic_path
 
     with atomic_path(path) as temp, temp.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
@@ -207,21 +220,13 @@ def _cell(value: object) -> str:
 
 def plot_iqm_curves(groups: list[GroupSummary], path: Path, threshold: float | None) -> None:
     """IQM of the eval return over seeds against env steps, with its 95 % CI band."""
-    import matplotlib
+    from minitaur_env.training.plotting import figure, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from minitaur_env.training.video import atomic_path
-
-    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
+    fig, ax = figure(figsize=(8, 4.5))
     for group in groups:
         if not group.curves:
             continue
-        grid = np.unique(np.concatenate([c.steps for c in group.curves]))
-        stats = np.array(
-            [iqm_with_ci([c.at(int(s)) for c in group.curves], reps=500) for s in grid]
-        )
+        grid, stats = group.iqm_curve()
         line = ax.plot(grid, stats[:, 0], label=f"{group.name} ({len(group.curves)} seeds)")
         ax.fill_between(grid, stats[:, 1], stats[:, 2], alpha=0.2, color=line[0].get_color())
     if threshold is not None:
@@ -231,7 +236,4 @@ def plot_iqm_curves(groups: list[GroupSummary], path: Path, threshold: float | N
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as temp:
-        fig.savefig(temp, format="png")
-    plt.close(fig)
+    save_figure(fig, path)

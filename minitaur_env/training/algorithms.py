@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import warnings
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -61,3 +63,25 @@ def load_model(cls: type[BaseAlgorithm], path: Path, **kwargs: Any) -> BaseAlgor
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
         return cls.load(path, **kwargs)
+
+
+def infer_algo(path: Path) -> tuple[str, str]:
+    """(algorithm, backend) of an SB3/SBX zip, from the module of its saved policy class."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, OSError) as error:
+        raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
+    from minitaur_env.training import policies  # imports torch
+
+    module = str(data.get("policy_class", {}).get("__module__", ""))
+    backend = "sbx" if module.startswith("sbx.") else "sb3"
+    for name in ALGORITHM_NAMES:
+        if f".{name}." in module or module.endswith(f".{name}"):
+            return name, backend
+    if module == policies.__name__ and len(policies.POLICIES) == 1:  # our own, for SAC
+        return next(iter(policies.POLICIES)), backend
+    # PPO and A2C share SB3's common ActorCriticPolicy; only PPO clips.
+    if module.endswith("common.policies"):
+        return ("ppo" if "clip_range" in data else "a2c"), backend
+    raise UsageError(f"cannot tell the algorithm of {path} ({module!r}); pass --algo")

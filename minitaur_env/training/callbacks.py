@@ -1,4 +1,5 @@
-"""Callbacks SB3 lacks: checked checkpoints, a divergence guard and a policy-video recorder."""
+"""Callbacks SB3 lacks: checked checkpoints, a divergence guard, evaluations that continue
+after a resume, VecNormalize saved with the best model, and a policy-video recorder."""
 
 from __future__ import annotations
 
@@ -8,13 +9,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
-from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.vec_env import unwrap_vec_normalize
 
 from minitaur_env.training import TrainingDiverged
+from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import save_normalizer
@@ -38,37 +37,6 @@ class DivergenceGuardCallback(BaseCallback):
         return True
 
 
-def check_weights(model: BaseAlgorithm) -> None:
-    """Raise TrainingDiverged naming the first non-finite weight of the model's policy."""
-    for name, finite in _weights_finite(model.policy):
-        if not finite:
-            raise TrainingDiverged(f"weight {name} became non-finite at step {model.num_timesteps}")
-
-
-def weights_finite(model: BaseAlgorithm) -> bool:
-    return all(finite for _, finite in _weights_finite(model.policy))
-
-
-def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:
-    """Check the weights, then save model, replay buffer and VecNormalize at the model's step.
-
-    A diverged model raises TrainingDiverged before anything is written, so the
-    checkpoints on disk are always usable.
-    """
-    check_weights(model)
-    steps = model.num_timesteps
-    run.checkpoint_dir.mkdir(parents=True, exist_ok=True)
-    path = run.checkpoint(steps)
-    model.save(path)
-    if isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
-        model.save_replay_buffer(run.replay_buffer(steps))
-        run.prune_replay_buffers()
-    normalizer = unwrap_vec_normalize(model.get_env())
-    if normalizer is not None:
-        save_normalizer(normalizer, run.vecnormalize(steps))
-    return path
-
-
 class CheckpointEveryCallback(BaseCallback):
     """A checked checkpoint each time the step count passes a multiple of ``save_freq``.
 
@@ -90,28 +58,6 @@ class CheckpointEveryCallback(BaseCallback):
             save_checked_checkpoint(self.model, self.run)
             self._next = (self.num_timesteps // self.save_freq + 1) * self.save_freq
         return True
-
-
-def _weights_finite(policy: Any) -> list[tuple[str, bool]]:
-    """(name, all finite) per weight tensor of a torch (SB3) or JAX (SBX) policy."""
-    # SBX policies are torch Modules too (SB3's BasePolicy), with their weights held in
-    # flax train states (actor_state, qf_state, ...) instead of torch parameters.
-    jax_states = {
-        attribute: state.params
-        for attribute, state in vars(policy).items()
-        if getattr(state, "params", None) is not None
-    }
-    if not jax_states:
-        with torch.no_grad():
-            return [(n, bool(torch.isfinite(p).all())) for n, p in policy.named_parameters()]
-    import jax
-
-    found = []
-    for attribute, params in jax_states.items():
-        for path, leaf in jax.tree_util.tree_leaves_with_path(params):
-            name = f"{attribute}{jax.tree_util.keystr(path)}"
-            found.append((name, bool(np.isfinite(np.asarray(leaf)).all())))
-    return found
 
 
 class VideoRecorderCallback(BaseCallback):
@@ -200,3 +146,25 @@ class SaveVecNormalizeCallback(BaseCallback):
             for path in self.paths:
                 save_normalizer(normalizer, path)
         return True
+
+
+class ResumableEvalCallback(EvalCallback):
+    """SB3's EvalCallback, able to go on with a resumed run's evaluation history.
+
+    EvalCallback keeps its history and call count in attributes it sets in ``__init__``
+    (``evaluations_*``, ``best_mean_reward``, ``n_calls``); :meth:`continue_from` sets
+    them from the run's evaluations.npz. ``tests/test_sb3_internals.py`` fails if a
+    new SB3 renames them.
+    """
+
+    def continue_from(self, evaluations: Path, steps: int, n_envs: int) -> None:
+        if evaluations.exists():
+            with np.load(evaluations) as data:
+                self.evaluations_timesteps = list(data["timesteps"])
+                self.evaluations_results = [list(r) for r in data["results"]]
+                self.evaluations_length = [list(r) for r in data["ep_lengths"]]
+            means = [np.mean(r) for r in self.evaluations_results]
+            self.best_mean_reward = float(max(means)) if means else -np.inf
+        # EvalCallback counts its calls from 0; continue the run's count so that
+        # evaluations stay on multiples of eval_freq, as before the stop.
+        self.n_calls = steps // n_envs

@@ -3,15 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 from collections.abc import Callable
 from typing import Any
 
-from minitaur_env.training import UsageError
+from minitaur_env.training import DEFAULT_ENV, UsageError
 from minitaur_env.training.algorithms import ALGORITHMS, BACKENDS
-
-DEFAULT_ENV = "MinitaurBulletEnv-v0"
 
 
 def add_experiment_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,7 +42,7 @@ def add_experiment_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_from_args(args: argparse.Namespace, **settings: Any) -> Any:
     """An ExperimentConfig from the shared flags (plus ``settings`` for the other fields)."""
-    from minitaur_env.training.experiment import ExperimentConfig
+    from minitaur_env.training.config import ExperimentConfig
     from minitaur_env.training.hyperparams import parse_overrides
 
     return ExperimentConfig.resolve(
@@ -105,49 +101,3 @@ def resume_overrides(args: argparse.Namespace, given: set) -> dict[str, Any]:
         for key, value in parse_overrides(args.env_kwargs, "--env-kwargs").items():
             overrides[f"env_kwargs.{key}"] = value
     return overrides
-
-
-def train_from_args(args: argparse.Namespace, given: set) -> int:
-    """Create or resume the run the flags describe, run it, and return the exit code."""
-    from minitaur_env.training.experiment import Experiment
-
-    options = dict(
-        verbose=args.verbose,
-        progress=args.progress,
-        num_threads=args.num_threads,
-        command=shlex.join(sys.argv),
-    )
-    try:
-        if args.resume:
-            experiment = Experiment.resume(
-                args.resume,
-                n_timesteps=args.n_timesteps,
-                overrides=resume_overrides(args, given),
-                **options,
-            )
-        else:
-            config = config_from_args(
-                args,
-                seed=args.seed,
-                n_envs=args.n_envs,
-                vec_env=args.vec_env,
-                save_freq=args.save_freq,
-                video_freq=args.video_freq,
-                video_length=args.video_length,
-                device=args.device,
-                tensorboard_log=args.tensorboard_log,
-                trained_agent=args.trained_agent,
-                trust_pickle=args.trust_pickle,
-            )
-            experiment = Experiment.create(config, args.log_folder, **options)
-        result = experiment.run()
-    except UsageError as error:
-        print(f"train.py: error: {error}", file=sys.stderr)
-        return 2
-    if result.status in ("diverged", "failed"):
-        print(f"train.py: error: {result.message}", file=sys.stderr)
-    elif result.message:
-        print(f"\n{result.message}", file=sys.stderr)
-    if result.trained_steps or result.status != "interrupted" or result.checkpoint:
-        print(result.summary())
-    return result.exit_code

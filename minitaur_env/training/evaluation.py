@@ -7,12 +7,8 @@ onnxruntime alone; SB3 is imported when a model zip is loaded.
 from __future__ import annotations
 
 import dataclasses
-import json
 import pickle
-import sys
-import time
 import zipfile
-from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -21,8 +17,8 @@ import numpy as np
 import yaml
 
 from minitaur_env.onnx_policy import OnnxPolicy
-from minitaur_env.training import ALGORITHM_NAMES, UsageError, missing_dependency
-from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training import ALGORITHM_NAMES, UsageError, env_name, missing_dependency
+from minitaur_env.training.run_folder import PROVENANCE_FILE, RunFolder
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -64,45 +60,6 @@ class LoadedPolicy:
             )
 
 
-def infer_algo(path: Path) -> tuple[str, str]:
-    """(algorithm, backend) of an SB3/SBX zip, from the module of its saved policy class."""
-    try:
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError, OSError) as error:
-        raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
-    from minitaur_env.training import policies
-
-    module = str(data.get("policy_class", {}).get("__module__", ""))
-    backend = "sbx" if module.startswith("sbx.") else "sb3"
-    for name in ALGORITHM_NAMES:
-        if f".{name}." in module or module.endswith(f".{name}"):
-            return name, backend
-    if module == policies.__name__ and len(policies.POLICIES) == 1:  # our own, for SAC
-        return next(iter(policies.POLICIES)), backend
-    # PPO and A2C share SB3's common ActorCriticPolicy; only PPO clips.
-    if module.endswith("common.policies"):
-        return ("ppo" if "clip_range" in data else "a2c"), backend
-    raise UsageError(f"cannot tell the algorithm of {path} ({module!r}); pass --algo")
-
-
-def normalizer_path_for(model_path: Path) -> Path | None:
-    """The VecNormalize statistics saved beside a model (or with its checkpoint), if any."""
-    run = RunFolder(
-        model_path.parents[1] if model_path.parent.name == "checkpoints" else model_path.parent
-    )
-    return run.vecnormalize_for(model_path)
-
-
-def run_config(model_path: Path) -> dict[str, Any]:
-    model_path = model_path.resolve()
-    for folder in (model_path.parent, model_path.parent.parent):
-        config = folder / "config.yml"
-        if config.is_file():
-            return yaml.safe_load(config.read_text()) or {}
-    return {}
-
-
 def load_policy(
     model_path: Path, algo: str | None = None, device: str = "auto", trust_pickle: bool = False
 ) -> LoadedPolicy | OnnxPolicy:
@@ -118,7 +75,7 @@ def load_policy(
     if not model_path.is_file():
         raise UsageError(f"model file not found: {model_path}")
     try:
-        from minitaur_env.training.algorithms import algorithm_class
+        from minitaur_env.training.algorithms import algorithm_class, infer_algo
         from minitaur_env.training.safe_load import load_sb3_model, observation_normalizer
     except ModuleNotFoundError as error:
         exported = RunFolder(model_path.parent).onnx_policy
@@ -129,7 +86,7 @@ def load_policy(
         )
         needs = missing_dependency("a model zip", error).split(": error: ", 1)[1]
         raise UsageError(f"{needs}; {alternative}") from error
-    config = run_config(model_path)
+    config = RunFolder.of_model(model_path).settings()
     inferred_algo, backend = infer_algo(model_path)
     algo = algo or config.get("algo") or inferred_algo
     backend = config.get("backend", backend)
@@ -138,7 +95,7 @@ def load_policy(
         model = load_sb3_model(cls, model_path, trust_pickle, device=device)
     except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
         raise UsageError(f"cannot load {model_path} as a {algo} model: {error}") from error
-    stats = normalizer_path_for(model_path)
+    stats = RunFolder.of_model(model_path).vecnormalize_for(model_path)
     normalizer = None if stats is None else observation_normalizer(stats, trust_pickle)
     return LoadedPolicy(
         model=model,
@@ -159,7 +116,7 @@ def pretrained_models(folder: Path | None = None) -> list[tuple[float, Path]]:
     """
     folder = PRETRAINED_DIR if folder is None else folder
     found = []
-    for provenance in folder.glob("*/*/provenance.yml"):
+    for provenance in folder.glob(f"*/*/{PROVENANCE_FILE}"):
         run = RunFolder(provenance.parent)
         info = yaml.safe_load(provenance.read_text()) or {}
         if run.zoo_model.is_file():
@@ -193,7 +150,7 @@ def find_model(
         if env_id:
             runs += [run.path for run in RunFolder.all(root, algo_name, env_id)]
         elif (root / algo_name).is_dir():
-            runs += [p for p in (root / algo_name).iterdir() if (p / "config.yml").is_file()]
+            runs += [run.path for run in RunFolder.found_under(root / algo_name, "*")]
     if not runs:
         raise UsageError(
             f"no trained model found under {root}/ (train one with train.py, or pass --model)"
@@ -201,13 +158,13 @@ def find_model(
     if exp_id:
         if not env_id:
             raise UsageError("--exp-id needs --env to name the run")
-        name = f"{(env_id or '').split(':')[-1]}_{exp_id}"
+        name = f"{env_name(env_id or '')}_{exp_id}"
         matches = [r for r in runs if r.name == name]
         if not matches:
             raise UsageError(f"no run {name} under {root}/{algo or '*'}/")
         run = matches[0]
     else:
-        run = max(runs, key=lambda r: (r / "config.yml").stat().st_mtime)
+        run = max(runs, key=lambda r: RunFolder(r).config.stat().st_mtime)
     if load_checkpoint is not None:
         path = RunFolder(run).checkpoint(load_checkpoint)
     elif load_last_checkpoint:
@@ -259,6 +216,24 @@ def run_episodes(
     return records
 
 
+def play(
+    policy: LoadedPolicy | OnnxPolicy,
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    episodes: int,
+    seed: int,
+    deterministic: bool = True,
+) -> list[dict[str, float]]:
+    """:func:`run_episodes` in a fresh env of ``env_id``, closed afterwards."""
+    from minitaur_env.training.single_env import make_env
+
+    env = make_env(env_id, env_kwargs)
+    try:
+        return run_episodes(policy, env, episodes, seed, deterministic)
+    finally:
+        env.close()
+
+
 def summarize(records: list[dict[str, float]]) -> dict[str, dict[str, float]]:
     """mean, std, min, max of every statistic; ``fell`` also as a count."""
     summary = {}
@@ -296,110 +271,3 @@ def format_table(summary: dict[str, dict[str, float]], episodes: int) -> str:
             )
     rows.append(f"{'falls':<30}{int(summary['fell']['count']):>10d} of {episodes}")
     return "\n".join(rows)
-
-
-def evaluate_from_args(args: Any, default_env: str) -> int:
-    """What evaluate.py does with its flags; returns the exit code."""
-    from minitaur_env.training.hyperparams import parse_overrides
-    from minitaur_env.training.run_folder import ensure_writable
-    from minitaur_env.training.single_env import make_env
-    from minitaur_env.training.video import atomic_path, record_video
-
-    try:
-        path = args.model or find_model(
-            args.log_folder,
-            args.algo,
-            args.env,
-            args.exp_id,
-            args.load_best,
-            args.load_checkpoint,
-            args.load_last_checkpoint,
-        )
-        policy = load_policy(Path(path), args.algo, args.device, args.trust_pickle)
-        if isinstance(policy, OnnxPolicy) and not args.deterministic:
-            raise UsageError(f"{path} is the deterministic actor; --stochastic needs the zip")
-        env_id = args.env or policy.env_id or default_env
-        # Judge on the registered episode length, whatever the training run used.
-        env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
-        env_kwargs.update(parse_overrides(args.env_kwargs, "--env-kwargs"))
-        video_path = None
-        if args.render_video:
-            stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-            default = Path("videos") / f"{env_id.split(':')[-1]}_{policy.algo}_{stamp}.mp4"
-            video_path = args.output or default
-            ensure_writable(video_path.parent)
-        if args.json is not None:
-            ensure_writable(args.json.parent)
-        details = [policy.algo] + ([policy.backend] if policy.backend != "sb3" else [])
-        if isinstance(policy, OnnxPolicy):
-            details.append("onnxruntime, normalization in the graph")
-        elif policy.normalizer is not None and policy.normalizer.norm_obs:
-            details.append("observations normalized")
-        print(f"policy: {policy.path} ({', '.join(details)}) on {env_id}")
-
-        results = None
-        if args.episodes:
-            env = make_env(env_id, env_kwargs)
-            try:
-                records = run_episodes(policy, env, args.episodes, args.seed, args.deterministic)
-            finally:
-                env.close()
-            summary = summarize(records)
-            mode = "deterministic" if args.deterministic else "stochastic"
-            print(f"{args.episodes} episodes, {mode}, seeds {args.seed}..")
-            print(format_table(summary, args.episodes))
-            results = {
-                "model": str(policy.path),
-                "algo": policy.algo,
-                "env": env_id,
-                "episodes": args.episodes,
-                "seed": args.seed,
-                "deterministic": args.deterministic,
-                "summary": summary,
-                "per_episode": records,
-            }
-            if args.json is not None:
-                with atomic_path(args.json) as temp:
-                    temp.write_text(json.dumps(results, indent=2))
-                print(f"statistics: {args.json}")
-
-        if video_path is not None:
-            env = make_env(
-                env_id, env_kwargs, render_mode="rgb_array", width=args.width, height=args.height
-            )
-            started = time.perf_counter()
-            try:
-                stats = record_video(
-                    env,
-                    lambda obs: policy.act(obs, args.deterministic),
-                    video_path,
-                    episodes=args.video_episodes,
-                    max_steps=env.spec.max_episode_steps or 1000,
-                    fps=args.video_fps,
-                    seed=args.seed,
-                    gif_path=video_path.with_suffix(".gif") if args.gif else None,
-                )
-            finally:
-                env.close()
-            elapsed = time.perf_counter() - started
-            gif = f"; gif: {video_path.with_suffix('.gif')}" if args.gif else ""
-            print(
-                f"video: {video_path} ({stats['frames']} frames at {stats['fps']:g} fps, "
-                f"{elapsed:.1f} s to write){gif}"
-            )
-        if args.gui:
-            env = make_env(env_id, env_kwargs, render_mode="human")
-            try:
-                run_episodes(policy, env, args.video_episodes, args.seed, args.deterministic)
-            finally:
-                env.close()
-    except UsageError as error:
-        print(f"evaluate.py: error: {error}", file=sys.stderr)
-        return 2
-    except RuntimeError as error:  # e.g. the GUI without a display
-        print(f"evaluate.py: error: {error}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("evaluate.py: interrupted", file=sys.stderr)
-        return 130
-    return 0

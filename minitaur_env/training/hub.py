@@ -18,13 +18,11 @@ from typing import Any
 
 import yaml
 
-from minitaur_env.training import UsageError
+from minitaur_env.training import UsageError, env_name
 from minitaur_env.training.evaluation import (
     LoadedPolicy,
     load_policy,
-    normalizer_path_for,
-    run_config,
-    run_episodes,
+    play,
     summarize,
 )
 from minitaur_env.training.run_folder import (
@@ -64,26 +62,21 @@ def package_for_hub(
     env_id = env_id or policy.env_id
     if not env_id:
         raise UsageError(f"{policy.path}: no run config names its env; pass --env")
-    env_name = env_id.split(":")[-1]
-    folder = out_dir / f"{policy.algo}-{env_name}"
+    name = f"{policy.algo}-{env_name(env_id)}"
+    folder = out_dir / name
     folder.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(policy.path, folder / f"{policy.algo}-{env_name}.zip")
-    stats = normalizer_path_for(policy.path)
+    shutil.copyfile(policy.path, folder / f"{name}.zip")
+    stats = RunFolder.of_model(policy.path).vecnormalize_for(policy.path)
     if stats is not None:  # the pickle for the zoo and SB3, the JSON for safe loading
         copy_statistics(stats, folder / HUB_VECNORMALIZE, trust_pickle)
-    config = run_config(policy.path)
+    config = RunFolder.of_model(policy.path).settings()
     (folder / "config.yml").write_text(yaml.safe_dump(zoo_hyperparams(config)))
     (folder / "env_kwargs.yml").write_text(yaml.safe_dump(policy.env_kwargs))
     export_onnx(policy.path, folder / ONNX_POLICY, trust_pickle)
 
     # Judged on the registered episode length, whatever the training run used.
     env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
-    env = make_env(env_id, env_kwargs)
-    try:
-        records = run_episodes(policy, env, episodes, seed)
-    finally:
-        env.close()
-    summary = summarize(records)
+    summary = summarize(play(policy, env_id, env_kwargs, episodes, seed))
     results = {
         "mean_reward": summary["return"]["mean"],
         "std_reward": summary["return"]["std"],

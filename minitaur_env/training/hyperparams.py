@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from minitaur_env.training import UsageError
+from minitaur_env.training import UsageError, env_name
 
 # Keys of a hyperparameter entry that configure the run rather than the algorithm.
 RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "policy")
@@ -44,7 +44,7 @@ def load_hyperparams(
             names = ", ".join(k for k in table if isinstance(table[k], dict) or table[k] is None)
             raise UsageError(f"{path} has no entry {entry!r}; it has: {names}")
         return _resolve(table, entry, path)
-    bare_id = env_id.split(":")[-1]
+    bare_id = env_name(env_id)
     key = bare_id if bare_id in table else "default"
     if key not in table:
         raise UsageError(f"{path} has no entry for {bare_id} and no 'default' entry")

@@ -29,8 +29,8 @@ from torch import nn
 from minitaur_env.onnx_policy import METADATA_KEY, load_session
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import LoadedPolicy, load_policy
+from minitaur_env.training.files import atomic_path
 from minitaur_env.training.run_folder import RunFolder
-from minitaur_env.training.video import atomic_path
 
 TOLERANCE = 1e-5
 OPSET = 18

@@ -1,16 +1,27 @@
-"""The learning curve of a run: mean evaluation return +- std against env steps."""
+"""Figures: a run's learning curve (mean evaluation return +- std against env steps)."""
 
 from __future__ import annotations
 
 import os
+from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
-from minitaur_env.training.video import atomic_path
+from minitaur_env.training.files import atomic_path
+
+
+def figure(ncols: int = 1, figsize: tuple[float, float] = (8, 4.5)) -> tuple[Figure, Any]:
+    """A figure and its axes, without pyplot: the user's matplotlib backend is left alone
+    (a notebook keeps its own), and nothing stays open in pyplot's registry."""
+    fig = Figure(figsize=figsize, dpi=100)
+    return fig, fig.subplots(1, ncols)
+
+
+def save_figure(fig: Figure, path: str | os.PathLike[str]) -> None:
+    fig.tight_layout()
+    with atomic_path(path) as temp:
+        fig.savefig(temp, format="png")
 
 
 def plot_learning_curve(
@@ -24,7 +35,7 @@ def plot_learning_curve(
         steps = data["timesteps"]
         results = data["results"]
     mean, std = results.mean(axis=1), results.std(axis=1)
-    fig, ax = plt.subplots(figsize=(7, 4), dpi=100)
+    fig, ax = figure(figsize=(7, 4))
     ax.plot(steps, mean, marker="o", markersize=3, label="mean eval return")
     ax.fill_between(steps, mean - std, mean + std, alpha=0.25, label="+- std")
     if reward_threshold is not None:
@@ -34,7 +45,4 @@ def plot_learning_curve(
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(loc="best")
-    fig.tight_layout()
-    with atomic_path(path) as temp:
-        fig.savefig(temp, format="png")
-    plt.close(fig)
+    save_figure(fig, path)

@@ -3,37 +3,23 @@
 from __future__ import annotations
 
 import dataclasses
-import pickle
 import re
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from minitaur_env.training import UsageError
+from minitaur_env.training import UsageError, env_name
+from minitaur_env.training.files import ensure_writable, write_yaml
 
+CONFIG_FILE = "config.yml"
+PROVENANCE_FILE = "provenance.yml"
 ONNX_POLICY = "policy.onnx"  # the deterministic actor, in shipped and Hub folders
 HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's push_to_hub)
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
 _REPLAY_BUFFER = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
-
-
-def env_folder_name(env_id: str) -> str:
-    return env_id.split(":")[-1]
-
-
-def ensure_writable(folder: Path) -> None:
-    """Create ``folder`` if needed and prove it is writable, or raise a UsageError."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        # A uniquely named probe: runs started together must not delete each other's.
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as error:
-        raise UsageError(f"cannot write to {folder}: {error.strerror or error}") from error
 
 
 @dataclasses.dataclass
@@ -89,7 +75,7 @@ class RunFolder:
         existing = cls.all(log_folder, algo, env_id)
         number = existing[-1].number + 1 if existing else 1
         while True:
-            path = parent / f"{env_folder_name(env_id)}_{number}"
+            path = parent / f"{env_name(env_id)}_{number}"
             try:
                 path.mkdir()
                 return cls(path)
@@ -108,7 +94,7 @@ class RunFolder:
     def all(cls, log_folder: str | Path, algo: str, env_id: str) -> list[RunFolder]:
         """Existing runs of ``algo`` on ``env_id``, lowest N first."""
         parent = Path(log_folder) / algo
-        pattern = re.compile(rf"^{re.escape(env_folder_name(env_id))}_(\d+)$")
+        pattern = re.compile(rf"^{re.escape(env_name(env_id))}_(\d+)$")
         runs = []
         if parent.is_dir():
             for child in parent.iterdir():
@@ -116,6 +102,23 @@ class RunFolder:
                 if match and child.is_dir():
                     runs.append((int(match.group(1)), cls(child)))
         return [run for _, run in sorted(runs, key=lambda item: item[0])]
+
+    @classmethod
+    def of_model(cls, model: Path) -> RunFolder:
+        """The run folder a model zip belongs to: its own, or its checkpoint's run."""
+        model = Path(model)
+        return cls(model.parents[1] if model.parent.name == "checkpoints" else model.parent)
+
+    @staticmethod
+    def is_run(path: str | Path) -> bool:
+        return (Path(path) / CONFIG_FILE).is_file()
+
+    @classmethod
+    def found_under(cls, folder: str | Path, pattern: str = "*/*") -> list[RunFolder]:
+        """The run folders at ``folder/<pattern>``, in name order."""
+        return [
+            cls(config.parent) for config in sorted(Path(folder).glob(f"{pattern}/{CONFIG_FILE}"))
+        ]
 
     @property
     def number(self) -> int:
@@ -129,7 +132,7 @@ class RunFolder:
     # -- files ----------------------------------------------------------------
     @property
     def config(self) -> Path:
-        return self.path / "config.yml"
+        return self.path / CONFIG_FILE
 
     @property
     def command(self) -> Path:
@@ -150,7 +153,7 @@ class RunFolder:
         if self.config.is_file():
             env = self.read_config().get("env")
             if isinstance(env, str):
-                return env_folder_name(env)
+                return env_name(env)
         return self.path.name.rsplit("_", 1)[0]
 
     @property
@@ -180,7 +183,7 @@ class RunFolder:
     @property
     def provenance(self) -> Path:
         """Only in a shipped agent's folder (pretrained/): how it was trained and judged."""
-        return self.path / "provenance.yml"
+        return self.path / PROVENANCE_FILE
 
     @property
     def onnx_policy(self) -> Path:
@@ -274,15 +277,19 @@ class RunFolder:
             raise UsageError(f"{self.config} does not hold a run configuration")
         return config
 
+    def settings(self) -> dict[str, Any]:
+        """The run's configuration, or ``{}`` where the folder has none (a bare model)."""
+        return self.read_config() if self.config.is_file() else {}
+
     def write_config(self, config: dict[str, Any]) -> None:
         """config.yml, and the same settings in the zoo's files under ``<env>/``."""
-        _write_yaml(self.config, config, sort_keys=False)
+        write_yaml(self.config, config, sort_keys=False)
         self.zoo_dir.mkdir(exist_ok=True)
-        _write_yaml(self.zoo_dir / "config.yml", zoo_hyperparams(config))
+        write_yaml(self.zoo_dir / "config.yml", zoo_hyperparams(config))
         zoo_args = ("algo", "env", "seed", "n_timesteps", "eval_freq", "eval_episodes",
                     "save_freq", "env_kwargs", "device")  # fmt: skip
-        _write_yaml(self.zoo_dir / "args.yml", {key: config[key] for key in zoo_args})
-        _write_yaml(self.zoo_dir / "env_kwargs.yml", config["env_kwargs"] or {})
+        write_yaml(self.zoo_dir / "args.yml", {key: config[key] for key in zoo_args})
+        write_yaml(self.zoo_dir / "env_kwargs.yml", config["env_kwargs"] or {})
 
     def rewind_logs(self, steps: int) -> None:
         """Forget evaluations and training episodes logged after env step ``steps``.
@@ -344,19 +351,8 @@ def zoo_hyperparams(config: dict[str, Any]) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _write_yaml(path: Path, content: dict[str, Any], sort_keys: bool = True) -> None:
-    temporary = path.with_suffix(".yml.tmp")
-    temporary.write_text(yaml.safe_dump(content, sort_keys=sort_keys))
-    temporary.replace(path)
-
-
 def normalizer_json(pickle_path: Path) -> Path:
     """The pickle-free sibling of VecNormalize statistics: ``vecnormalize.pkl`` ->
     ``vecnormalize.json``, read by default (``safe_load``); the pickle is for the zoo and
     ``--resume``."""
     return pickle_path.with_suffix(".json")
-
-
-def load_pickle(path: Path) -> Any:
-    with path.open("rb") as handle:
-        return pickle.load(handle)

@@ -34,7 +34,8 @@ import numpy as np
 from gymnasium import spaces
 
 from minitaur_env.training import UsageError
-from minitaur_env.training.run_folder import load_pickle, normalizer_json
+from minitaur_env.training.files import load_pickle
+from minitaur_env.training.run_folder import normalizer_json
 
 TRUST_FLAG = "--trust-pickle"
 # Modules whose classes a zip may name as its policy or replay buffer.
@@ -72,7 +73,7 @@ class ObservationNormalizer:
 
 def save_normalizer(normalizer: Any, pickle_path: Path) -> None:
     """VecNormalize's pickle (the zoo's scripts and ``--resume`` read it) and its JSON."""
-    from minitaur_env.training.video import atomic_path
+    from minitaur_env.training.files import atomic_path
 
     with atomic_path(pickle_path) as temp:
         normalizer.save(str(temp))
@@ -80,7 +81,7 @@ def save_normalizer(normalizer: Any, pickle_path: Path) -> None:
 
 
 def write_normalizer_json(normalizer: Any, path: Path) -> None:
-    from minitaur_env.training.video import atomic_path
+    from minitaur_env.training.files import atomic_path
 
     def stats(rms: Any) -> dict[str, Any]:
         return {"mean": np.asarray(rms.mean).tolist(), "var": np.asarray(rms.var).tolist(),

@@ -1,0 +1,163 @@
+"""What a run starts from and saves: checkpoints written only from finite weights and read
+back only when every file loads, and a trained agent to go on from (``train.py -i``)."""
+
+from __future__ import annotations
+
+import pickle
+import sys
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize, unwrap_vec_normalize
+
+from minitaur_env.training import TrainingDiverged, UsageError
+from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, load_model
+from minitaur_env.training.config import ExperimentConfig
+from minitaur_env.training.files import load_pickle
+from minitaur_env.training.hyperparams import algorithm_kwargs
+from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.safe_load import (
+    TRUST_FLAG,
+    attach,
+    load_sb3_model,
+    save_normalizer,
+    training_normalizer,
+)
+
+# What a kill -9 during a save leaves behind: a torn zip or pickle.
+UNREADABLE = (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, pickle.PickleError)
+
+
+def check_weights(model: BaseAlgorithm) -> None:
+    """Raise TrainingDiverged naming the first non-finite weight of the model's policy."""
+    for name, finite in _weights_finite(model.policy):
+        if not finite:
+            raise TrainingDiverged(f"weight {name} became non-finite at step {model.num_timesteps}")
+
+
+def weights_finite(model: BaseAlgorithm) -> bool:
+    return all(finite for _, finite in _weights_finite(model.policy))
+
+
+def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:
+    """Check the weights, then save model, replay buffer and VecNormalize at the model's step.
+
+    A diverged model raises TrainingDiverged before anything is written, so the
+    checkpoints on disk are always usable.
+    """
+    check_weights(model)
+    steps = model.num_timesteps
+    run.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+    path = run.checkpoint(steps)
+    model.save(path)
+    if isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
+        model.save_replay_buffer(run.replay_buffer(steps))
+        run.prune_replay_buffers()
+    normalizer = unwrap_vec_normalize(model.get_env())
+    if normalizer is not None:
+        save_normalizer(normalizer, run.vecnormalize(steps))
+    return path
+
+
+def load_newest_checkpoint(
+    run: RunFolder,
+    algorithm: type[BaseAlgorithm],
+    *,
+    normalize: bool,
+    off_policy: bool,
+    device: str = "auto",
+    log: Callable[..., Any] = print,
+) -> tuple[BaseAlgorithm, Callable[[VecEnv], VecNormalize] | None, int]:
+    """(model, VecNormalize to wrap the new env in, steps) of the newest complete
+    checkpoint: its model, its statistics (if the run normalizes) and its replay buffer (if
+    off-policy) all load. Torn or incomplete ones are skipped with a line that says so:
+    going on with an empty buffer or without statistics would silently be another run."""
+    for steps, path in run.checkpoints():
+        if off_policy and not run.replay_buffer(steps).is_file():
+            log(f"skipping checkpoint {path.name}: its replay buffer is missing", file=sys.stderr)
+            continue
+        try:
+            model = load_model(algorithm, path, device=device)
+            normalizer = attach(load_pickle(run.vecnormalize(steps))) if normalize else None
+            if off_policy:
+                model.load_replay_buffer(run.replay_buffer(steps))
+            return model, normalizer, steps
+        except UNREADABLE as error:
+            log(f"skipping unreadable checkpoint {path.name}: {error}", file=sys.stderr)
+    raise UsageError(
+        f"no complete checkpoint (model{', statistics' if normalize else ''}"
+        f"{', replay buffer' if off_policy else ''}) in {run.checkpoint_dir}"
+    )
+
+
+def load_trained_agent(
+    config: ExperimentConfig, env: VecEnv, log: Callable[..., Any] = print
+) -> BaseAlgorithm:
+    """The model of ``config.trained_agent`` on this run's envs, with the run's
+    hyperparameters (network shape aside) and its replay buffer where one lies beside
+    it, as the zoo's ``--trained-agent`` does."""
+    path = Path(config.trained_agent)
+    kwargs = algorithm_kwargs(config.hyperparams)
+    kwargs.pop("policy_kwargs", None)  # the saved network decides its own shape
+    try:
+        model = load_sb3_model(
+            algorithm_class(config.algo, config.backend), path, config.trust_pickle,
+            training=True, env=env, seed=config.seed, device=config.device,
+            tensorboard_log=config.tensorboard_log, **kwargs,
+        )  # fmt: skip
+    except (ValueError, KeyError) as error:  # e.g. the spaces of another env
+        message = " ".join(str(error).split())[:200]
+        raise UsageError(f"--trained-agent {path} does not fit {config.env}: {message}") from error
+    model.num_timesteps = 0  # -n counts this run's steps, as in the zoo
+    buffer = RunFolder.replay_buffer_beside(path)
+    if config.algo in OFF_POLICY and buffer.is_file():
+        if config.trust_pickle:
+            model.load_replay_buffer(buffer)
+        else:
+            log(f"{buffer} is a pickle (it can run code): starting with an empty "
+                f"replay buffer; pass {TRUST_FLAG} to load it")  # fmt: skip
+    return model
+
+
+def trained_agent_normalizer(config: ExperimentConfig) -> Callable[[VecEnv], VecNormalize] | None:
+    """The trained agent's VecNormalize statistics, to go on adapting from."""
+    model = Path(config.trained_agent)
+    path = RunFolder.of_model(model).vecnormalize_for(model)
+    if (path is None) == bool(config.normalize):
+        raise UsageError(
+            f"--trained-agent {config.trained_agent}: the model was trained "
+            f"{'without' if path is None else 'with'} VecNormalize statistics and this "
+            f"run has normalize={config.normalize}; set --hyperparams normalize="
+            f"{'false' if path is None else 'true'}"
+        )
+    if path is None:
+        return None
+    return training_normalizer(path, config.trust_pickle)
+
+
+def _weights_finite(policy: Any) -> list[tuple[str, bool]]:
+    """(name, all finite) per weight tensor of a torch (SB3) or JAX (SBX) policy."""
+    # SBX policies are torch Modules too (SB3's BasePolicy), with their weights held in
+    # flax train states (actor_state, qf_state, ...) instead of torch parameters.
+    jax_states = {
+        attribute: state.params
+        for attribute, state in vars(policy).items()
+        if getattr(state, "params", None) is not None
+    }
+    if not jax_states:
+        with torch.no_grad():
+            return [(n, bool(torch.isfinite(p).all())) for n, p in policy.named_parameters()]
+    import jax
+
+    found = []
+    for attribute, params in jax_states.items():
+        for path, leaf in jax.tree_util.tree_leaves_with_path(params):
+            name = f"{attribute}{jax.tree_util.keystr(path)}"
+            found.append((name, bool(np.isfinite(np.asarray(leaf)).all())))
+    return found

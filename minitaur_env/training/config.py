@@ -1,0 +1,120 @@
+"""What a run depends on, as written to its config.yml, and checked before anything starts."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from minitaur_env.training import UsageError
+from minitaur_env.training.algorithms import algorithm_class, infer_algo
+from minitaur_env.training.envs import VEC_ENVS
+from minitaur_env.training.hyperparams import RUN_KEYS, algorithm_kwargs, load_hyperparams
+from minitaur_env.training.single_env import qualified_env_id
+
+
+@dataclasses.dataclass
+class ExperimentConfig:
+    """Everything a run depends on; written to the run folder's config.yml."""
+
+    algo: str = "sac"
+    env: str = "MinitaurBulletEnv-v0"
+    backend: str = "sb3"
+    config: str | None = None  # the hyperparameter entry used (the env id by default)
+    env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    seed: int = 0
+    n_timesteps: int = 100_000
+    n_envs: int = 1
+    vec_env: str = "auto"
+    normalize: bool | dict[str, Any] = False
+    policy: str = "MlpPolicy"
+    hyperparams: dict[str, Any] = dataclasses.field(default_factory=dict)
+    eval_freq: int = 10_000
+    eval_episodes: int = 20
+    save_freq: int = 5_000
+    video_freq: int = 0
+    video_length: int = 1000
+    device: str = "auto"
+    tensorboard_log: str | None = None
+    trained_agent: str | None = None  # a model zip to start from, as the zoo's -i
+    # -i: also load the pickles in and beside that model (they can run code from the file)
+    trust_pickle: bool = False
+
+    @classmethod
+    def resolve(
+        cls,
+        algo: str = "sac",
+        env: str = "MinitaurBulletEnv-v0",
+        *,
+        entry: str | None = None,
+        conf_file: str | None = None,
+        hyperparams: dict[str, Any] | None = None,
+        n_timesteps: int | None = None,
+        n_envs: int | None = None,
+        **settings: Any,
+    ) -> ExperimentConfig:
+        """The hyperparameter file's entry for ``env`` (or ``entry``), with overrides.
+
+        ``hyperparams`` may also set the run keys ``n_timesteps``, ``n_envs``,
+        ``normalize`` and ``policy``; ``settings`` are the other fields.
+        """
+        table = load_hyperparams(algo, env, conf_file, entry)
+        table.update(hyperparams or {})
+        run = {key: table.pop(key) for key in RUN_KEYS if key in table}
+        if n_timesteps is not None:
+            run["n_timesteps"] = n_timesteps
+        if n_envs is not None:
+            run["n_envs"] = n_envs
+        config = cls(
+            algo=algo,
+            env=env,
+            config=entry or env,
+            n_timesteps=int(run.get("n_timesteps", 100_000)),
+            n_envs=int(run.get("n_envs", 1)),
+            normalize=run.get("normalize", False),
+            policy=run.get("policy", "MlpPolicy"),
+            hyperparams=table,
+            **settings,
+        )
+        config.validate()
+        return config
+
+    def validate(self) -> None:
+        """Raise a UsageError for what would only fail later, inside training."""
+        for name in ("eval_freq", "save_freq", "video_freq"):
+            if getattr(self, name) < 0:
+                raise UsageError(f"--{name.replace('_', '-')} must be >= 0")
+        for name in ("eval_episodes", "video_length", "n_envs"):
+            if getattr(self, name) < 1:
+                raise UsageError(f"--{name.replace('_', '-')} must be >= 1")
+        if self.n_timesteps < 1:
+            raise UsageError("-n/--n-timesteps must be >= 1")
+        if self.vec_env not in VEC_ENVS:
+            raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}")
+        algorithm_class(self.algo, self.backend)
+        algorithm_kwargs(self.hyperparams)
+        qualified_env_id(self.env)
+        if self.trained_agent:
+            self._check_trained_agent(Path(self.trained_agent))
+
+    def _check_trained_agent(self, path: Path) -> None:
+        if not path.is_file():
+            raise UsageError(f"--trained-agent: no model file at {path}")
+        algo, backend = infer_algo(path)
+        if (algo, backend) != (self.algo, self.backend):
+            raise UsageError(
+                f"--trained-agent {path} is a {backend} {algo} model and this run trains "
+                f"{self.backend} {self.algo}; pass --algo {algo} --backend {backend}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> ExperimentConfig:
+        """From a config.yml; keys that older versions wrote and this one dropped are ignored."""
+        fields = {field.name for field in dataclasses.fields(cls)}
+        config = cls(**{key: value for key, value in values.items() if key in fields})
+        if config.vec_env not in VEC_ENVS:  # e.g. "subproc", which grouped replaced
+            config.vec_env = "auto"
+        return config

@@ -1,0 +1,250 @@
+"""Shipping a policy: judge candidates on seeds no one reports, pick one, write it with
+its provenance.
+
+Selection seeds (5000..) are used neither by training (seeds 0.., eval env seeds offset by
+10000) nor by the report (12345..); the figures a shipped policy carries are its report
+seeds'. ``python -m minitaur_env.ship`` is the command; provenance.yml is written here
+and nowhere else.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from minitaur_env.training import DEFAULT_ENV, UsageError
+from minitaur_env.training.aggregate import RunCurve
+from minitaur_env.training.evaluation import load_policy, play, summarize
+from minitaur_env.training.files import write_yaml
+from minitaur_env.training.onnx_export import export_onnx
+from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.safe_load import copy_statistics
+
+SELECT_SEED = 5000
+REPORT_SEED = 12345
+
+
+def judge(
+    model: Path,
+    episodes: int,
+    seed: int,
+    env_id: str | None = None,
+    env_kwargs: dict | None = None,
+    live_actor: bool = False,
+    trust_pickle: bool = False,
+) -> dict[str, float]:
+    """Mean, std, falls and speed of ``episodes`` deterministic episodes from ``seed``.
+
+    ``live_actor``: a model trained with ``actor_ema`` acts with its live actor instead of
+    the average, which is the model the same run would have ended with without the
+    average (the average does not change training).
+    """
+    policy = load_policy(model, device="cpu", trust_pickle=trust_pickle)
+    if live_actor:
+        if getattr(policy.model.policy, "averaged_actor", None) is None:
+            raise UsageError(f"{model} has no averaged actor (actor_ema) to leave out")
+        policy.model.policy.averaged_actor = None
+    env_id = env_id or policy.env_id or DEFAULT_ENV
+    summary = summarize(play(policy, env_id, env_kwargs or {}, episodes, seed))
+    return {
+        "mean": summary["return"]["mean"],
+        "std": summary["return"]["std"],
+        "falls": int(summary["fell"]["count"]),
+        "speed": summary["speed"]["mean"],
+    }
+
+
+def candidates(run: RunFolder, from_steps: int, only: list[int] | None = None) -> list[Path]:
+    if only:
+        return [path for steps, path in run.checkpoints() if steps in only]
+    found = [run.best_model, run.final_model]
+    found += [path for steps, path in run.checkpoints() if steps >= from_steps]
+    return [path for path in found if path.is_file()]
+
+
+def select(
+    runs: list[RunFolder],
+    *,
+    episodes: int = 20,
+    select_episodes: int | None = None,
+    select_seed: int = SELECT_SEED,
+    report_seed: int = REPORT_SEED,
+    from_steps: int = 200_000,
+    only_steps: list[int] | None = None,
+    final_only: bool = False,
+    trust_pickle: bool = False,
+    log: Callable[[str], Any] = print,
+) -> dict[str, Any]:
+    """Judge every candidate of ``runs`` on the selection seeds and pick one.
+
+    Candidates: each run's best model, final model and checkpoints from ``from_steps`` on
+    (``only_steps``: just those checkpoints; ``final_only``: just the final models, the
+    models the training command ends with). The pick has the fewest falls, then the
+    highest mean; only then is it played on the report seeds. Each run's best and final
+    models are also judged on the report seeds. Returns the whole report.
+    """
+    select_episodes = episodes if select_episodes is None else select_episodes
+    if min(episodes, select_episodes) < 1:
+        raise UsageError("--episodes and --select-episodes must be at least 1")
+    report: dict[str, Any] = {
+        "select_seed": select_seed, "report_seed": report_seed, "episodes": episodes,
+        "select_episodes": select_episodes, "final_only": final_only, "runs": {},
+        "selection": {},
+    }  # fmt: skip
+    log(
+        f"{select_episodes} deterministic episodes on selection seeds {select_seed}.., "
+        f"{episodes} on report seeds {report_seed}.."
+    )
+    for run in runs:
+        per_run = report["runs"][str(run)] = {}
+        for name, model in (("best", run.best_model), ("final", run.final_model)):
+            if model.is_file():
+                result = per_run[name] = judge(
+                    model, episodes, report_seed, trust_pickle=trust_pickle
+                )
+                log(f"{run}  {name:5s} model on report seeds: {_figures(result)}")
+        if final_only:
+            found = [run.final_model] if run.final_model.is_file() else []
+        else:
+            found = candidates(run, from_steps, only_steps)
+        for model in found:
+            result = judge(model, select_episodes, select_seed, trust_pickle=trust_pickle)
+            report["selection"][str(model)] = result
+            log(f"  candidate {model}: {_figures(result)} (selection seeds)")
+    if not report["selection"]:
+        raise UsageError("no candidate model in " + ", ".join(str(run) for run in runs))
+    chosen = max(
+        report["selection"],
+        key=lambda m: (-report["selection"][m]["falls"], report["selection"][m]["mean"]),
+    )
+    reported = judge(Path(chosen), episodes, report_seed, trust_pickle=trust_pickle)
+    report["chosen"] = {"model": chosen, "report": reported}
+    log(f"chosen: {chosen}: {_figures(reported)} on the report seeds")
+    finals = [r["final"]["mean"] for r in report["runs"].values() if "final" in r]
+    bests = [r["best"]["mean"] for r in report["runs"].values() if "best" in r]
+    if bests and finals:
+        log(f"median over {len(bests)} runs: best model {np.median(bests):.2f}, "
+            f"final model {np.median(finals):.2f} (report seeds)")  # fmt: skip
+    return report
+
+
+def _figures(result: dict[str, float]) -> str:
+    return (f"{result['mean']:6.2f} ± {result['std']:.2f}, {result['falls']} falls, "
+            f"{result['speed']:.2f} m/s")  # fmt: skip
+
+
+def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> dict[str, Any]:
+    """Write the report's chosen model as a zoo run folder at ``target``, with its
+    statistics, ONNX actor, evaluations, learning curve and provenance.yml. Returns the
+    provenance."""
+    model = Path(report["chosen"]["model"])
+    reported, selected = report["chosen"]["report"], report["selection"][str(model)]
+    episodes, report_seed = report["episodes"], report["report_seed"]
+    run, shipped = RunFolder.of_model(model), RunFolder(target)
+    config = run.read_config()
+    started_from = origin_of(config.get("trained_agent"))  # before shipping may overwrite it
+    shipped.path.mkdir(parents=True, exist_ok=True)
+    trained_backend = config["backend"]
+    if trained_backend == "sbx":  # ship the same weights in SB3's format: no JAX needed
+        from minitaur_env.training.export import sbx_to_sb3
+        from minitaur_env.training.single_env import make_env
+
+        env = make_env(config["env"], config["env_kwargs"])
+        trained = load_policy(model, device="cpu", trust_pickle=trust_pickle).model
+        sbx_to_sb3(trained, env).save(shipped.zoo_model)
+        env.close()
+        config = {**config, "backend": "sb3"}
+    else:
+        shutil.copyfile(model, shipped.zoo_model)
+    shipped.write_config(config)  # also the zoo's <env>/ files
+    stats = RunFolder.of_model(model).vecnormalize_for(model)
+    if stats is not None:  # the pickle for the zoo, the JSON for safe loading
+        copy_statistics(stats, shipped.zoo_vecnormalize, trust_pickle)
+    onnx = export_onnx(shipped.zoo_model, shipped.onnx_policy)  # refuses if it disagrees
+    as_trained = None
+    if trained_backend == "sbx":
+        # Torch and XLA round differently (actions agree to 2e-6), and 1000 steps of
+        # walking amplify that: the figures must be the shipped file's own, judged as
+        # evaluate.py plays it (with the statistics just copied beside it).
+        as_trained, reported = reported, judge(shipped.zoo_model, episodes, report_seed)
+    shutil.copyfile(run.evaluations, shipped.evaluations)
+    shutil.copyfile(run.learning_curve, shipped.learning_curve)
+    steps = int(saved_steps(model))
+    curve = RunCurve.read(run)
+    minutes = float(np.interp(steps, curve.steps, curve.seconds)) / 60
+    provenance = {
+        "algo": config["algo"], "backend": trained_backend, "env": config["env"],
+        "env_kwargs": config["env_kwargs"],
+        "eval_mean_return": round(reported["mean"], 3),
+        "eval_std_return": round(reported["std"], 3),
+        "eval_episodes": episodes,
+        "eval_seeds": f"{report_seed}..{report_seed + episodes - 1}",
+        "eval_deterministic": True,
+        "eval_falls": reported["falls"],
+        "eval_mean_speed_m_per_s": round(reported["speed"], 3),
+        "eval_command": f"python evaluate.py --model {shipped.zoo_model} "
+                        f"--episodes {episodes}",
+        "selection": {
+            "rule": "most episodes without a fall, then the highest mean, among "
+                    + ("the runs' final models (no checkpoint picking)" if report["final_only"]
+                       else "each run's best model, final model and checkpoints")
+                    + " (python -m minitaur_env.ship)",
+            "seeds": f"{report['select_seed']}.."
+                     f"{report['select_seed'] + report['select_episodes'] - 1}",
+            "mean_return": round(selected["mean"], 3), "falls": selected["falls"],
+            "candidates": {
+                candidate: f"{result['mean']:.2f}, {result['falls']} falls"
+                for candidate, result in report["selection"].items()
+            },
+        },
+        "training": {
+            "commands": run.command.read_text().strip().splitlines(),
+            "seed": config["seed"],
+            "model": f"{model.relative_to(run.path)} of {run.path.name}",
+            "model_steps": steps,
+            "trained_steps": max((steps for steps, _ in run.checkpoints()), default=steps),
+            "wall_clock_min_to_model": round(minutes, 1),
+            "wall_clock_note": "training time on the 2-core CPU machine, shared with other "
+                               "training runs (see the README)",
+        },
+    }  # fmt: skip
+    if as_trained is not None:
+        provenance["exported"] = {
+            "how": "trained with SBX (JAX); shipped with the same weights in SB3's format "
+                   "by minitaur_env.training.export.sbx_to_sb3; the eval figures above are "
+                   "the shipped file's",
+            "sbx_model_on_the_same_seeds": {
+                "mean_return": round(as_trained["mean"], 3),
+                "std_return": round(as_trained["std"], 3), "falls": as_trained["falls"],
+            },
+        }  # fmt: skip
+    provenance["onnx"] = {
+        "file": shipped.onnx_policy.name,
+        "max_abs_action_difference_from_predict": float(f"{onnx['max_abs_difference']:.2e}"),
+    }
+    if started_from:
+        provenance["training"]["started_from"] = started_from
+    write_yaml(shipped.provenance, provenance, sort_keys=False)
+    return provenance
+
+
+def origin_of(trained_agent: str | None) -> dict | None:
+    """The model a run started from (train.py -i) and, if it was shipped, its training."""
+    if not trained_agent:
+        return None
+    provenance = RunFolder.of_model(Path(trained_agent)).provenance
+    earlier = yaml.safe_load(provenance.read_text()) if provenance.is_file() else {}
+    return {"trained_agent": trained_agent, **earlier.get("training", {})}
+
+
+def saved_steps(model: Path) -> int:
+    """The env steps a model zip was saved at (SB3's num_timesteps in its data)."""
+    with zipfile.ZipFile(model) as archive:
+        return int(json.loads(archive.read("data"))["num_timesteps"])

@@ -1,0 +1,71 @@
+"""What the scripts hand the library: flags beside --resume, the recorded command, defaults."""
+
+from __future__ import annotations
+
+import inspect
+import subprocess
+import sys
+
+import yaml
+
+import train
+from minitaur_env.training import Experiment, ExperimentConfig
+from minitaur_env.training.run_folder import RunFolder
+
+PENDULUM = [
+    "--env", "Pendulum-v1", "-n", "300", "--eval-freq", "0", "--save-freq", "150",
+    "--hyperparams", "learning_starts=50", "batch_size=16", "policy_kwargs={net_arch: [8]}",
+]  # fmt: skip
+
+
+def test_command_txt_records_the_argv_given_to_main_not_sys_argv(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", ["pytest", "--some-pytest-flag"])
+    assert train.main([*PENDULUM, "--seed", "3"]) == 0
+    run = RunFolder(tmp_path / "logs" / "sac" / "Pendulum-v1_1")
+    command = run.command.read_text()
+    assert "--seed 3" in command and "Pendulum-v1" in command
+    assert "--some-pytest-flag" not in command
+
+
+def test_resume_honours_device(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert train.main([*PENDULUM, "--device", "auto"]) == 0
+    run = RunFolder(tmp_path / "logs" / "sac" / "Pendulum-v1_1")
+    assert run.read_config()["device"] == "auto"
+    assert train.main(["--resume", str(run.path), "-n", "450", "--device", "cpu"]) == 0
+    assert yaml.safe_load(run.config.read_text())["device"] == "cpu"
+    # negative control: without --device the saved one stays
+    assert train.main(["--resume", str(run.path), "-n", "600"]) == 0
+    assert run.read_config()["device"] == "cpu"
+
+
+def test_experiment_and_train_py_share_their_verbosity_default():
+    default = inspect.signature(Experiment.__init__).parameters["verbose"].default
+    assert default == train.build_parser().get_default("verbose") == 0
+
+
+def test_plotting_leaves_the_users_matplotlib_backend_alone(tmp_path):
+    # A notebook's backend, say; the curves are drawn and saved all the same.
+    script = (
+        "import matplotlib, numpy as np; matplotlib.use('svg'); "
+        "from minitaur_env.training.plotting import plot_learning_curve; "
+        "np.savez('e.npz', timesteps=np.array([1, 2]), results=np.ones((2, 1)), "
+        "ep_lengths=np.ones((2, 1))); plot_learning_curve('e.npz', 'curve.png'); "
+        "print(matplotlib.get_backend())"
+    )
+    shown = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True,
+                           text=True, timeout=120)  # fmt: skip
+    assert shown.returncode == 0, shown.stderr
+    assert shown.stdout.split()[-1] == "svg"
+    assert (tmp_path / "curve.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_resume_device_is_a_setting_of_the_session(tmp_path):
+    config = ExperimentConfig.resolve("sac", "Pendulum-v1", n_timesteps=10, device="auto")
+    run = RunFolder(tmp_path / "Pendulum-v1_1")
+    run.path.mkdir()
+    run.write_config(config.to_dict())
+    run.checkpoint_dir.mkdir()
+    run.checkpoint(5).write_bytes(b"")
+    assert Experiment.resume(run.path, device="cpu").config.device == "cpu"

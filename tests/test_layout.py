@@ -1,0 +1,77 @@
+"""The training package's layering: each module imports only modules below it, lazily or not,
+and no module grows past one screenful of concerns (400 lines)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "minitaur_env" / "training"
+
+# Lowest first. A module may import modules of lower layers only: a new module must be
+# placed here, and an import that climbs fails the test.
+LAYERS = [
+    {"files", "hyperparams", "policies", "progress", "runtime", "search_space", "single_env",
+     "vec_env", "export"},
+    {"run_folder", "video", "plotting", "algorithms", "envs"},
+    {"aggregate", "safe_load", "results"},
+    {"config", "evaluation"},
+    {"checkpoints", "onnx_export"},
+    {"callbacks", "hub", "shipping"},
+    {"experiment"},
+    {"trial", "cli"},
+    {"sweeps", "sweep_summary"},
+    {"commands"},
+]  # fmt: skip
+LAYER_OF = {name: index for index, layer in enumerate(LAYERS) for name in layer}
+
+
+def imported_modules(path: Path) -> set[str]:
+    """The package's modules that ``path`` imports anywhere (in functions too)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            parts = node.module.split(".")
+            if parts[:2] == ["minitaur_env", "training"]:
+                if len(parts) > 2:
+                    found.add(parts[2])
+                else:  # from minitaur_env.training import <module or name>
+                    found |= {a.name for a in node.names if (PACKAGE / f"{a.name}.py").is_file()}
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                parts = alias.name.split(".")
+                if parts[:2] == ["minitaur_env", "training"] and len(parts) > 2:
+                    found.add(parts[2])
+    return found
+
+
+MODULES = sorted(path.stem for path in PACKAGE.glob("*.py") if path.stem != "__init__")
+
+
+def test_every_module_has_a_layer():
+    assert set(MODULES) == set(LAYER_OF), "place new modules in LAYERS"
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_module_imports_only_lower_layers(module):
+    climbing = {
+        other
+        for other in imported_modules(PACKAGE / f"{module}.py")
+        if LAYER_OF.get(other, -1) >= LAYER_OF[module]
+    }
+    assert not climbing, f"{module} imports {sorted(climbing)}, which are not below it"
+
+
+def test_the_layer_check_catches_an_upward_import(tmp_path):
+    # negative control: a lazy import of a higher module, inside a function
+    source = "def f():\n    from minitaur_env.training.experiment import Experiment\n"
+    (tmp_path / "probe.py").write_text(source)
+    assert imported_modules(tmp_path / "probe.py") == {"experiment"}
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_no_module_is_over_400_lines(module):
+    lines = len((PACKAGE / f"{module}.py").read_text().splitlines())
+    assert lines <= 400, f"{module}.py has {lines} lines"
