@@ -193,10 +193,11 @@ def test_default_video_name_goes_to_videos(workdir, best_model):
 def test_gui_mode_plays_episodes(workdir, best_model, display):
     result = run_script(
         "evaluate.py", "--model", str(best_model), "--episodes", "0", "--gui",
-        "--video-episodes", "1", "--env-kwargs", "max_episode_steps=10", cwd=workdir,
+        "--video-episodes", "2", "--env-kwargs", "max_episode_steps=10", cwd=workdir,
         keep_display=True,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
+    assert "gui: 2 episodes in the PyBullet window, returns " in result.stdout
 
 
 def test_default_policy_is_the_best_shipped_one_else_the_latest_run(tmp_path, monkeypatch):
@@ -258,3 +259,21 @@ def test_user_errors_give_one_clear_line(workdir, best_model, tmp_path, args, me
     assert len(lines) == 1, result.stderr
     assert message in lines[0]
     assert sorted(p.name for p in tmp_path.rglob("*")) == before  # nothing half-written
+
+
+def test_exp_id_picks_that_run_of_the_log_folder(tmp_path):
+    import shutil
+
+    shipped = Path(__file__).resolve().parents[1] / "pretrained" / "ppo" / "MinitaurBulletEnv-v0_1"
+    for number in (1, 2):
+        shutil.copytree(shipped, tmp_path / "logs" / "ppo" / f"MinitaurBulletEnv-v0_{number}")
+    common = ["-f", "logs", "--algo", "ppo", "--env", "MinitaurBulletEnv-v0", "--episodes", "1",
+              "--env-kwargs", "max_episode_steps=20"]  # fmt: skip
+    for number in (1, 2):
+        played = run_script("evaluate.py", *common, "--exp-id", str(number), cwd=tmp_path)
+        assert played.returncode == 0, played.stderr
+        assert f"MinitaurBulletEnv-v0_{number}/MinitaurBulletEnv-v0.zip" in played.stdout
+    missing = run_script("evaluate.py", *common, "--exp-id", "3", cwd=tmp_path)
+    assert error_lines(missing) == [
+        "evaluate.py: error: no run MinitaurBulletEnv-v0_3 under logs/ppo/"
+    ]

@@ -71,6 +71,36 @@ def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path
     assert row["reached_0"] == "0/2" and row["steps_to_0_per_seed"] == "- -"
     assert np.isnan(row["median_steps_to_0"])
     assert (sweep.folder / "curves.png").read_bytes().startswith(b"\x89PNG")
+    # --summarize prints the same table again from the folder alone
+    (sweep.folder / "summary.csv").unlink()
+    again = subprocess.run(
+        sweep_command("--summarize", str(sweep.folder), "--milestones", "-3000", "0"),
+        cwd=tmp_path, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert f"{row['iqm']:.2f}" in again.stdout and (sweep.folder / "summary.csv").is_file()
+
+
+def test_a_search_repeats_each_configuration_over_the_seeds_and_asha_stops_on_steps(tmp_path):
+    from ray.tune.schedulers import ASHAScheduler
+    from ray.tune.search import Repeater
+
+    (tmp_path / "space.yml").write_text("learning_rate: {loguniform: [1.0e-4, 1.0e-3]}\n")
+    space = load_search_space(tmp_path / "space.yml")
+    repeated = Sweep(base(), seeds=[0, 1, 2], search=space, trials=2)._tuner(resume=False)
+    config = repeated._local_tuner._tune_config
+    assert isinstance(config.search_alg, Repeater) and config.search_alg.repeat == 3
+    assert config.num_samples == 6  # 2 configurations x 3 seeds
+    asha = Sweep(base(), seeds=[0], search=space, scheduler="asha")._tuner(resume=False)
+    scheduler = asha._local_tuner._tune_config.scheduler
+    assert isinstance(scheduler, ASHAScheduler)
+    assert scheduler._time_attr == "timesteps" and scheduler._max_t == 400
+
+
+def test_gpus_and_cpus_per_trial_are_checked_before_ray_starts():
+    for settings in ({"gpus_per_trial": -1.0}, {"cpus_per_trial": 0.0}):
+        with pytest.raises(UsageError, match="--cpus-per-trial must be > 0"):
+            Sweep(base(), **settings).validate()
 
 
 @pytest.mark.parametrize(

@@ -443,6 +443,24 @@ def test_eval_env_normalizes_observations_as_training_does():
     both.close()
 
 
+def test_evaluations_normalize_observations_with_the_training_statistics(tmp_path):
+    from minitaur_env.training import Experiment, ExperimentConfig
+
+    config = ExperimentConfig.resolve(
+        "sac", "Pendulum-v1", n_timesteps=300, eval_freq=150, eval_episodes=1, save_freq=0,
+        vec_env="dummy", device="cpu", hyperparams={"learning_starts": 50, "batch_size": 16,
+        "normalize": True, "policy_kwargs": {"net_arch": [8]}},
+    )  # fmt: skip
+    experiment = Experiment.create(config, tmp_path)
+    assert experiment.run().status == "completed"
+    trained, evaluated = experiment.env, experiment.eval_env
+    assert not evaluated.training  # evaluation never updates the statistics...
+    # ...it uses the training env's, synced at each evaluation (the last one at step 300,
+    # so they match the statistics the run ended with)
+    np.testing.assert_array_equal(evaluated.obs_rms.mean, trained.obs_rms.mean)
+    assert trained.obs_rms.count > 300  # and those saw the training observations
+
+
 def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     from minitaur_env.training.hyperparams import load_hyperparams
 

@@ -168,9 +168,13 @@ def evaluate(args: argparse.Namespace) -> int:
         if args.gui:
             env = make_env(env_id, env_kwargs, render_mode="human")
             try:
-                run_episodes(policy, env, args.video_episodes, args.seed, args.deterministic)
+                shown = run_episodes(
+                    policy, env, args.video_episodes, args.seed, args.deterministic
+                )
             finally:
                 env.close()
+            returns = ", ".join(f"{record['return']:.2f}" for record in shown)
+            print(f"gui: {len(shown)} episodes in the PyBullet window, returns {returns}")
     except UsageError as error:
         print(f"evaluate.py: error: {error}", file=sys.stderr)
         return 2
