@@ -53,7 +53,13 @@ def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:
         help="auto (default): a progress bar on a terminal, else one line per evaluation",
     )
     add("--device", default="auto", help="torch device: auto, cpu, cuda (default: auto)")
-    add("--num-threads", type=int, default=0, help="torch CPU threads; 0: torch's default")
+    add(
+        "--num-threads",
+        type=int,
+        default=0,
+        help="torch CPU threads; 0 (default): 1 for MLP policies, torch's default for CNNs "
+        "(more threads spin against any other busy process)",
+    )
     add(
         "-i",
         "--trained-agent",

@@ -69,3 +69,18 @@ def test_resume_device_is_a_setting_of_the_session(tmp_path):
     run.checkpoint_dir.mkdir()
     run.checkpoint(5).write_bytes(b"")
     assert Experiment.resume(run.path, device="cpu").config.device == "cpu"
+
+
+def test_training_uses_one_torch_thread_unless_told(tmp_path, monkeypatch):
+    import torch
+
+    monkeypatch.chdir(tmp_path)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        assert train.main([*PENDULUM]) == 0
+        assert torch.get_num_threads() == 1  # an MLP: one thread by default
+        assert train.main([*PENDULUM, "--num-threads", "2"]) == 0
+        assert torch.get_num_threads() == 2  # negative control: the flag decides
+    finally:
+        torch.set_num_threads(before)

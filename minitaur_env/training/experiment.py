@@ -37,7 +37,7 @@ from minitaur_env.training.checkpoints import (
     weights_finite,
 )
 from minitaur_env.training.config import ExperimentConfig
-from minitaur_env.training.envs import make_eval_env, make_training_env, resolve_vec_env
+from minitaur_env.training.envs import make_eval_env, make_training_env
 from minitaur_env.training.files import ensure_writable
 from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.policies import resolve_policy
@@ -299,7 +299,7 @@ class Experiment:
     def run(self) -> RunResult:
         """Train to ``config.n_timesteps``; Ctrl-C and SIGTERM end in a checked checkpoint."""
         config = self.config
-        set_torch_threads(self.num_threads, resolve_vec_env(config.vec_env, config.n_envs))
+        set_torch_threads(self.num_threads, config.policy)
         run = self.run_folder
         started = time.perf_counter()
         with sigterm_as_exception():

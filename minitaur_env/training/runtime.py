@@ -48,13 +48,18 @@ def ignoring_more_signals() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
-def set_torch_threads(num_threads: int, vec_env: str) -> None:
-    """``num_threads``, else one thread when grouped envs (``vec_env``) use the other cores."""
+def set_torch_threads(num_threads: int, policy: str) -> None:
+    """``num_threads`` torch threads; 0: one, unless the policy is a CNN.
+
+    A few-layer MLP gains little from more threads on an idle machine (SAC: 67.6 env
+    steps/s with one, 86.6 with two), and loses everything on a busy one: torch's threads
+    spin-wait against any other process on their cores (a 1,200-step SAC run took 400 s
+    beside a training run, 30 s with one thread). ``benchmarks/threads_under_load.py``
+    measures both.
+    """
     import torch
 
     if num_threads > 0:
         torch.set_num_threads(num_threads)
-    elif vec_env == "grouped":
-        # torch's idle threads spin-wait on the workers' cores: with PPO's 8 envs that
-        # cost 40% of the speed.
+    elif "cnn" not in str(policy).lower():
         torch.set_num_threads(1)
