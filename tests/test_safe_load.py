@@ -18,6 +18,7 @@ import pytest
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy
+from minitaur_env.training.run_folder import EMBEDDED_STATISTICS
 from minitaur_env.training.safe_load import UntrustedPickle, safe_custom_objects
 from tests.scripts import TINY, error_lines, needs, run_script
 
@@ -73,6 +74,15 @@ def run(trained: Path, tmp_path: Path) -> Path:
     return copy
 
 
+def strip_embedded_statistics(model: Path) -> None:
+    """Make ``model`` a zip as SB3 or the zoo save it: without the statistics ours carry."""
+    with zipfile.ZipFile(model) as source:
+        members = {n: source.read(n) for n in source.namelist() if n != EMBEDDED_STATISTICS}
+    with zipfile.ZipFile(model, "w") as target:
+        for name, data in members.items():
+            target.writestr(name, data)
+
+
 def evaluate(*args: str, cwd: Path):
     return run_script("evaluate.py", *args, "--episodes", "1", "--env-kwargs",
                       "max_episode_steps=20", cwd=cwd)  # fmt: skip
@@ -109,6 +119,7 @@ def test_evaluate_runs_no_code_from_a_zip_entry_without_the_flag(run, tmp_path):
 
 
 def test_evaluate_needs_the_flag_for_statistics_without_their_json(run, tmp_path):
+    strip_embedded_statistics(run / "MinitaurBulletEnv-v0.zip")
     marker = tmp_path / "ran-stats"
     stats = run / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
     stats.with_suffix(".json").unlink()
@@ -137,6 +148,7 @@ def test_training_from_a_model_starts_an_empty_buffer_and_loads_no_pickle(run, t
         started.stdout + started.stderr
     )
     # The statistics without their JSON: refused in one line, then loaded with the flag.
+    strip_embedded_statistics(model)
     stats = run / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
     stats.with_suffix(".json").unlink()
     refused = run_script("train.py", *args, *TINY, cwd=tmp_path)

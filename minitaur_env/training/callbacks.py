@@ -4,6 +4,7 @@ after a resume, VecNormalize saved with the best model, and a policy-video recor
 from __future__ import annotations
 
 import math
+import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -16,7 +17,7 @@ from minitaur_env.training import TrainingDiverged
 from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.run_folder import RunFolder
-from minitaur_env.training.safe_load import save_normalizer
+from minitaur_env.training.safe_load import embed_statistics, save_normalizer
 from minitaur_env.training.video import record_video
 
 
@@ -132,19 +133,41 @@ class VideoRecorderCallback(BaseCallback):
             self._env = None
 
 
-class SaveVecNormalizeCallback(BaseCallback):
-    """Save the training env's VecNormalize statistics, pickle and JSON (as EvalCallback's
-    new-best hook)."""
+class PromoteBestModel(BaseCallback):
+    """EvalCallback's new-best hook: EvalCallback saved the new best model in the run's
+    staging folder (in place, as SB3 does); this embeds the statistics in it and moves it
+    over ``best_model.zip`` in one ``os.replace``, then writes the statistics' zoo copies
+    beside it. A kill at any point leaves the previous best model whole."""
 
-    def __init__(self, *paths: str | Path) -> None:
+    def __init__(self, run: RunFolder) -> None:
         super().__init__()
-        self.paths = [Path(path) for path in paths]
+        self.run = run
 
     def _on_step(self) -> bool:
+        staged = self.run.staging_dir / self.run.best_model.name
         normalizer = self.model.get_vec_normalize_env()
         if normalizer is not None:
-            for path in self.paths:
+            embed_statistics(staged, normalizer)
+        os.replace(staged, self.run.best_model)
+        if normalizer is not None:
+            # The zoo's enjoy --load-best reads <env>/vecnormalize.pkl, as the zoo itself
+            # writes it: the best model's until the final model's replaces it.
+            for path in (self.run.vecnormalize_beside(self.run.best_model),
+                         self.run.zoo_vecnormalize):  # fmt: skip
                 save_normalizer(normalizer, path)
+        return True
+
+
+class PublishEvaluations(BaseCallback):
+    """EvalCallback's after-evaluation hook: EvalCallback rewrote ``evaluations.npz`` in
+    the staging folder; this moves it over the run's in one ``os.replace``."""
+
+    def __init__(self, run: RunFolder) -> None:
+        super().__init__()
+        self.run = run
+
+    def _on_step(self) -> bool:
+        os.replace(self.run.staging_dir / self.run.evaluations.name, self.run.evaluations)
         return True
 
 

@@ -19,12 +19,15 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize, unwrap_vec_no
 from minitaur_env.training import TrainingDiverged, UsageError
 from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, load_model
 from minitaur_env.training.config import ExperimentConfig
-from minitaur_env.training.files import load_pickle
+from minitaur_env.training.files import atomic_path, load_pickle
 from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import (
     TRUST_FLAG,
+    adapting_normalizer,
     attach,
+    embed_statistics,
+    embedded_statistics,
     load_sb3_model,
     save_normalizer,
     training_normalizer,
@@ -45,23 +48,35 @@ def weights_finite(model: BaseAlgorithm) -> bool:
     return all(finite for _, finite in _weights_finite(model.policy))
 
 
+def save_model(model: BaseAlgorithm, path: Path) -> None:
+    """The model zip, replaced atomically, with its VecNormalize statistics inside: a model
+    and the statistics it acts with can never be out of step, wherever the zip goes."""
+    normalizer = unwrap_vec_normalize(model.get_env()) if model.get_env() is not None else None
+    with atomic_path(path) as temp:
+        model.save(temp)
+        if normalizer is not None:
+            embed_statistics(temp, normalizer)
+
+
 def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:
-    """Check the weights, then save model, replay buffer and VecNormalize at the model's step.
+    """Check the weights, then save replay buffer, VecNormalize and model at the model's step.
 
     A diverged model raises TrainingDiverged before anything is written, so the
-    checkpoints on disk are always usable.
+    checkpoints on disk are always usable. Each file is replaced atomically and the model
+    zip comes last: a checkpoint whose zip is there has its other files too.
     """
     check_weights(model)
     steps = model.num_timesteps
     run.checkpoint_dir.mkdir(parents=True, exist_ok=True)
-    path = run.checkpoint(steps)
-    model.save(path)
     if isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
-        model.save_replay_buffer(run.replay_buffer(steps))
-        run.prune_replay_buffers()
+        with atomic_path(run.replay_buffer(steps)) as temp:
+            model.save_replay_buffer(temp)
     normalizer = unwrap_vec_normalize(model.get_env())
     if normalizer is not None:
         save_normalizer(normalizer, run.vecnormalize(steps))
+    path = run.checkpoint(steps)
+    save_model(model, path)
+    run.prune_replay_buffers()
     return path
 
 
@@ -128,14 +143,18 @@ def load_trained_agent(
 def trained_agent_normalizer(config: ExperimentConfig) -> Callable[[VecEnv], VecNormalize] | None:
     """The trained agent's VecNormalize statistics, to go on adapting from."""
     model = Path(config.trained_agent)
-    path = RunFolder.of_model(model).vecnormalize_for(model)
-    if (path is None) == bool(config.normalize):
+    embedded = embedded_statistics(model)
+    path = None if embedded is not None else RunFolder.of_model(model).vecnormalize_for(model)
+    found = embedded is not None or path is not None
+    if found != bool(config.normalize):
         raise UsageError(
             f"--trained-agent {config.trained_agent}: the model was trained "
-            f"{'without' if path is None else 'with'} VecNormalize statistics and this "
+            f"{'with' if found else 'without'} VecNormalize statistics and this "
             f"run has normalize={config.normalize}; set --hyperparams normalize="
-            f"{'false' if path is None else 'true'}"
+            f"{'true' if found else 'false'}"
         )
+    if embedded is not None:
+        return adapting_normalizer(embedded)
     if path is None:
         return None
     return training_normalizer(path, config.trust_pickle)

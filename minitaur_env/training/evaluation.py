@@ -76,7 +76,7 @@ def load_policy(
         raise UsageError(f"model file not found: {model_path}")
     try:
         from minitaur_env.training.algorithms import algorithm_class, infer_algo
-        from minitaur_env.training.safe_load import load_sb3_model, observation_normalizer
+        from minitaur_env.training.safe_load import load_sb3_model
     except ModuleNotFoundError as error:
         exported = RunFolder(model_path.parent).onnx_policy
         alternative = (
@@ -86,17 +86,24 @@ def load_policy(
         )
         needs = missing_dependency("a model zip", error).split(": error: ", 1)[1]
         raise UsageError(f"{needs}; {alternative}") from error
-    config = RunFolder.of_model(model_path).settings()
-    inferred_algo, backend = infer_algo(model_path)
-    algo = algo or config.get("algo") or inferred_algo
+    run = RunFolder.of_model(model_path)
+    config = run.settings()
+    try:
+        inferred_algo, backend = infer_algo(model_path)
+    except UsageError:
+        if algo is None:
+            raise
+        inferred_algo, backend = algo, config.get("backend", "sb3")
+    if algo is not None and algo != inferred_algo:
+        raise UsageError(f"{model_path} holds a {inferred_algo} model, not {algo}; drop --algo")
+    algo = inferred_algo
     backend = config.get("backend", backend)
     cls = algorithm_class(algo, backend)
     try:
         model = load_sb3_model(cls, model_path, trust_pickle, device=device)
     except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
         raise UsageError(f"cannot load {model_path} as a {algo} model: {error}") from error
-    stats = RunFolder.of_model(model_path).vecnormalize_for(model_path)
-    normalizer = None if stats is None else observation_normalizer(stats, trust_pickle)
+    normalizer = _normalizer_of(model_path, run, config, trust_pickle)
     return LoadedPolicy(
         model=model,
         algo=algo,
@@ -106,6 +113,32 @@ def load_policy(
         env_kwargs=dict(config.get("env_kwargs") or {}),
         normalizer=normalizer,
     )
+
+
+def _normalizer_of(
+    model_path: Path, run: RunFolder, config: dict[str, Any], trust_pickle: bool
+) -> ObservationNormalizer | None:
+    """The statistics inside the zip, else those saved beside it; None only where the run
+    did not normalize: playing a normalized model without its statistics would be a silent
+    wrong answer."""
+    from minitaur_env.training.safe_load import (
+        embedded_statistics,
+        frozen_normalizer,
+        observation_normalizer,
+    )
+
+    content = embedded_statistics(model_path)
+    if content is not None:
+        return frozen_normalizer(content)
+    stats = run.vecnormalize_for(model_path)
+    if stats is not None:
+        return observation_normalizer(stats, trust_pickle)
+    if config.get("normalize"):
+        raise UsageError(
+            f"{model_path} was trained with VecNormalize ({run.config} says normalize: "
+            f"{config['normalize']}) but its statistics are neither in the zip nor beside it"
+        )
+    return None
 
 
 def pretrained_models(folder: Path | None = None) -> list[tuple[float, Path]]:

@@ -33,6 +33,7 @@ from minitaur_env.training.checkpoints import (
     load_newest_checkpoint,
     load_trained_agent,
     save_checked_checkpoint,
+    save_model,
     trained_agent_normalizer,
     weights_finite,
 )
@@ -203,7 +204,7 @@ class Experiment:
                 off_policy=config.algo in OFF_POLICY, device=config.device, log=self.log,
             )  # fmt: skip
             self.resumed_at = steps
-            self.run_folder.rewind_logs(steps)
+            self.run_folder.rewind_logs(steps, self.log)
             # New episodes after a resume, from the same seed.
             self._build_envs(config.seed + steps, normalizer)
             model.set_env(self.env, force_reset=True)
@@ -239,8 +240,9 @@ class Experiment:
         from minitaur_env.training.callbacks import (
             CheckpointEveryCallback,
             DivergenceGuardCallback,
+            PromoteBestModel,
+            PublishEvaluations,
             ResumableEvalCallback,
-            SaveVecNormalizeCallback,
             VideoRecorderCallback,
         )
         from minitaur_env.training.progress import TrainingProgress
@@ -251,22 +253,17 @@ class Experiment:
         if config.save_freq:
             callbacks.append(CheckpointEveryCallback(run, config.save_freq))
         if config.eval_freq:
-            on_new_best = None
-            if config.normalize:
-                # The zoo's enjoy --load-best reads <env>/vecnormalize.pkl, as the zoo
-                # itself writes it: the best model's until the final model's replaces it.
-                on_new_best = SaveVecNormalizeCallback(
-                    run.vecnormalize_beside(run.best_model), run.zoo_vecnormalize
-                )
+            # SB3 writes both in place; they are staged and then moved over atomically.
+            run.staging_dir.mkdir(exist_ok=True)
             evaluation = ResumableEvalCallback(
                 self.eval_env,
                 n_eval_episodes=config.eval_episodes,
                 eval_freq=max(config.eval_freq // config.n_envs, 1),
-                log_path=str(run.path),
-                best_model_save_path=str(run.path),
+                log_path=str(run.staging_dir),
+                best_model_save_path=str(run.staging_dir),
                 deterministic=True,
-                callback_on_new_best=on_new_best,
-                callback_after_eval=CallbackList(self.after_eval) if self.after_eval else None,
+                callback_on_new_best=PromoteBestModel(run),
+                callback_after_eval=CallbackList([PublishEvaluations(run), *self.after_eval]),
                 verbose=self.verbose,
             )
             if self.resuming:
@@ -365,7 +362,7 @@ class Experiment:
                 if self.config.save_freq and (not newest or newest[0][0] != model.num_timesteps):
                     # With its replay buffer, so that --resume -n can extend the run exactly.
                     save_checked_checkpoint(model, run)
-                model.save(run.zoo_model)
+                save_model(model, run.zoo_model)
                 normalizer = model.get_vec_normalize_env()
                 if normalizer is not None:
                     save_normalizer(normalizer, run.zoo_vecnormalize)

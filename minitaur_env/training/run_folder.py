@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -11,11 +13,13 @@ import numpy as np
 import yaml
 
 from minitaur_env.training import UsageError, env_name
-from minitaur_env.training.files import ensure_writable, write_yaml
+from minitaur_env.training.files import atomic_path, ensure_writable, write_text, write_yaml
 
 CONFIG_FILE = "config.yml"
 PROVENANCE_FILE = "provenance.yml"
 ONNX_POLICY = "policy.onnx"  # the deterministic actor, in shipped and Hub folders
+# A member of our model zips: the VecNormalize statistics the model was saved with (JSON).
+EMBEDDED_STATISTICS = "minitaur_env_vecnormalize.json"
 HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's push_to_hub)
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
@@ -199,6 +203,11 @@ class RunFolder:
         return self.path / "videos"
 
     @property
+    def staging_dir(self) -> Path:
+        """Where files SB3 writes in place are written before they replace the run's."""
+        return self.path / ".staging"
+
+    @property
     def checkpoint_dir(self) -> Path:
         return self.path / "checkpoints"
 
@@ -291,19 +300,34 @@ class RunFolder:
         write_yaml(self.zoo_dir / "args.yml", {key: config[key] for key in zoo_args})
         write_yaml(self.zoo_dir / "env_kwargs.yml", config["env_kwargs"] or {})
 
-    def rewind_logs(self, steps: int) -> None:
+    def rewind_logs(self, steps: int, log: Any = print) -> None:
         """Forget evaluations and training episodes logged after env step ``steps``.
 
         A resume restarts from a checkpoint, so what the killed session logged after it
         belongs to a branch that no longer exists; kept, it would repeat steps and
-        evaluations. An episode still running at the checkpoint is dropped too.
+        evaluations. An episode still running at the checkpoint is dropped too, and so is
+        what a kill tore: an unreadable evaluations.npz, a monitor's partial last line
+        (each with a line saying so). Every rewrite replaces its file atomically.
         """
         if self.evaluations.exists():
-            with np.load(self.evaluations) as data:
-                logged = dict(data)
-            kept = logged["timesteps"] <= steps
-            if not kept.all():
-                np.savez(self.evaluations, **{key: value[kept] for key, value in logged.items()})
+            try:
+                with np.load(self.evaluations) as data:
+                    logged = dict(data)
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+                torn = self.evaluations.with_suffix(".npz.unreadable")
+                os.replace(self.evaluations, torn)
+                log(f"{self.evaluations.name} was unreadable ({error}); moved to {torn.name}, "
+                    "the evaluations start again from this session")  # fmt: skip
+            else:
+                kept = logged["timesteps"] <= steps
+                if not kept.all():
+                    with atomic_path(self.evaluations) as temp:
+                        np.savez(temp, **{key: value[kept] for key, value in logged.items()})
+        for monitor in sorted(self.monitor_dir.glob("*.monitor.csv")):
+            lines = monitor.read_text().splitlines(True)
+            if lines and not lines[-1].endswith("\n"):
+                write_text(monitor, "".join(lines[:-1]))
+                log(f"{monitor.name}: dropped a partial last line ({lines[-1]!r})")
         episodes = self.monitor_episodes()
         episodes.sort(key=lambda episode: (episode.session, episode.time))
         done, dropped = 0, {}
@@ -314,7 +338,7 @@ class RunFolder:
         for monitor, lines in dropped.items():
             kept = [text for i, text in enumerate(monitor.read_text().splitlines(True))
                     if i not in lines]  # fmt: skip
-            monitor.write_text("".join(kept))
+            write_text(monitor, "".join(kept))
 
     def monitor_episodes(self) -> list[MonitorEpisode]:
         """Every finished training episode of the monitor files, with its session.

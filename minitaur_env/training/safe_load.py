@@ -35,7 +35,7 @@ from gymnasium import spaces
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.files import load_pickle
-from minitaur_env.training.run_folder import normalizer_json
+from minitaur_env.training.run_folder import EMBEDDED_STATISTICS, normalizer_json
 
 TRUST_FLAG = "--trust-pickle"
 # Modules whose classes a zip may name as its policy or replay buffer.
@@ -80,14 +80,14 @@ def save_normalizer(normalizer: Any, pickle_path: Path) -> None:
     write_normalizer_json(normalizer, normalizer_json(pickle_path))
 
 
-def write_normalizer_json(normalizer: Any, path: Path) -> None:
-    from minitaur_env.training.files import atomic_path
+def normalizer_content(normalizer: Any) -> dict[str, Any]:
+    """VecNormalize's settings and statistics as plain JSON data (no pickle)."""
 
     def stats(rms: Any) -> dict[str, Any]:
         return {"mean": np.asarray(rms.mean).tolist(), "var": np.asarray(rms.var).tolist(),
                 "count": float(rms.count)}  # fmt: skip
 
-    content = {
+    return {
         "format": "minitaur_env VecNormalize statistics 1",
         "norm_obs": bool(normalizer.norm_obs),
         "norm_reward": bool(normalizer.norm_reward),
@@ -98,8 +98,32 @@ def write_normalizer_json(normalizer: Any, path: Path) -> None:
         "obs_rms": stats(normalizer.obs_rms),
         "ret_rms": stats(normalizer.ret_rms),
     }
+
+
+def write_normalizer_json(normalizer: Any, path: Path) -> None:
+    from minitaur_env.training.files import atomic_path
+
     with atomic_path(path) as temp:
-        temp.write_text(json.dumps(content))
+        temp.write_text(json.dumps(normalizer_content(normalizer)))
+
+
+def embed_statistics(model_zip: Path, normalizer: Any) -> None:
+    """Add the statistics to a model zip (SB3 ignores members it does not know), so that the
+    model and the statistics it was trained with travel, and are replaced, as one file."""
+    with zipfile.ZipFile(model_zip, "a") as archive:
+        archive.writestr(EMBEDDED_STATISTICS, json.dumps(normalizer_content(normalizer)))
+
+
+def embedded_statistics(model_zip: Path) -> dict[str, Any] | None:
+    """The statistics embedded in a model zip, or None (a model trained without them, or
+    saved by SB3 itself)."""
+    try:
+        with zipfile.ZipFile(model_zip) as archive:
+            if EMBEDDED_STATISTICS not in archive.namelist():
+                return None
+            return _checked(json.loads(archive.read(EMBEDDED_STATISTICS)), model_zip)
+    except (zipfile.BadZipFile, OSError, ValueError) as error:
+        raise UsageError(f"{model_zip}: not a readable model file ({error})") from error
 
 
 def copy_statistics(source: Path, target: Path, trust_pickle: bool = False) -> None:
@@ -125,11 +149,25 @@ def read_normalizer_json(path: Path) -> dict[str, Any]:
         content = json.loads(path.read_text())
     except (OSError, ValueError) as error:
         raise UsageError(f"{path}: not readable VecNormalize statistics ({error})") from error
+    return _checked(content, path)
+
+
+def _checked(content: Any, source: Path) -> dict[str, Any]:
     missing = [k for k in ("norm_obs", "clip_obs", "epsilon", "obs_rms", "ret_rms")
                if not isinstance(content, dict) or k not in content]  # fmt: skip
     if missing:
-        raise UsageError(f"{path}: not VecNormalize statistics (no {', '.join(missing)})")
+        raise UsageError(f"{source}: not VecNormalize statistics (no {', '.join(missing)})")
     return content
+
+
+def frozen_normalizer(content: dict[str, Any]) -> ObservationNormalizer:
+    return ObservationNormalizer(
+        mean=np.asarray(content["obs_rms"]["mean"], dtype=np.float64),
+        var=np.asarray(content["obs_rms"]["var"], dtype=np.float64),
+        epsilon=float(content["epsilon"]),
+        clip_obs=float(content["clip_obs"]),
+        norm_obs=bool(content["norm_obs"]),
+    )
 
 
 def observation_normalizer(pickle_path: Path, trust_pickle: bool = False) -> ObservationNormalizer:
@@ -137,14 +175,7 @@ def observation_normalizer(pickle_path: Path, trust_pickle: bool = False) -> Obs
     pickle itself."""
     sibling = normalizer_json(pickle_path)
     if sibling.is_file():
-        content = read_normalizer_json(sibling)
-        return ObservationNormalizer(
-            mean=np.asarray(content["obs_rms"]["mean"], dtype=np.float64),
-            var=np.asarray(content["obs_rms"]["var"], dtype=np.float64),
-            epsilon=float(content["epsilon"]),
-            clip_obs=float(content["clip_obs"]),
-            norm_obs=bool(content["norm_obs"]),
-        )
+        return frozen_normalizer(read_normalizer_json(sibling))
     if not trust_pickle:
         raise UntrustedPickle(pickle_path, f"the VecNormalize statistics (no {sibling.name})")
     loaded = load_pickle(pickle_path)
@@ -160,14 +191,18 @@ def observation_normalizer(pickle_path: Path, trust_pickle: bool = False) -> Obs
 def training_normalizer(pickle_path: Path, trust_pickle: bool = False) -> Callable[[Any], Any]:
     """A function that wraps a training VecEnv in a VecNormalize with the saved statistics
     (from the JSON sibling, else the trusted pickle), which goes on adapting from them."""
-    from stable_baselines3.common.vec_env import VecNormalize
 
     sibling = normalizer_json(pickle_path)
     if not sibling.is_file():
         if not trust_pickle:
             raise UntrustedPickle(pickle_path, f"the VecNormalize statistics (no {sibling.name})")
         return attach(load_pickle(pickle_path))
-    content = read_normalizer_json(sibling)
+    return adapting_normalizer(read_normalizer_json(sibling))
+
+
+def adapting_normalizer(content: dict[str, Any]) -> Callable[[Any], Any]:
+    """``training_normalizer`` from statistics already read (a JSON file, a model zip)."""
+    from stable_baselines3.common.vec_env import VecNormalize
 
     def wrap(venv: Any) -> Any:
         normalizer = VecNormalize(

@@ -1,0 +1,122 @@
+"""A kill at any write leaves a run folder that resumes, and a model that plays with its own
+statistics: every file is replaced atomically, the statistics travel inside the model zip."""
+
+from __future__ import annotations
+
+import shutil
+import zipfile
+
+import numpy as np
+import pytest
+
+from minitaur_env.training import Experiment, ExperimentConfig, UsageError
+from minitaur_env.training.evaluation import load_policy
+from minitaur_env.training.run_folder import EMBEDDED_STATISTICS, RunFolder
+from tests.scripts import REPO, error_lines, run_script
+
+NORMALIZED_SAC = {
+    "learning_starts": 50, "batch_size": 16, "buffer_size": 2000, "normalize": True,
+    "policy_kwargs": {"net_arch": [8]},
+}  # fmt: skip
+
+
+def pendulum_run(tmp_path, n_timesteps=300) -> RunFolder:
+    config = ExperimentConfig.resolve(
+        "sac", "Pendulum-v1", hyperparams=NORMALIZED_SAC, n_timesteps=n_timesteps,
+        eval_freq=100, eval_episodes=1, save_freq=100, vec_env="dummy", device="cpu",
+    )  # fmt: skip
+    result = Experiment.create(config, tmp_path / "logs").run()
+    assert result.status == "completed"
+    return result.run
+
+
+def test_every_model_zip_carries_the_statistics_it_acts_with(tmp_path):
+    run = pendulum_run(tmp_path)
+    for model in (run.zoo_model, run.best_model, run.checkpoint(300)):
+        with zipfile.ZipFile(model) as archive:
+            assert EMBEDDED_STATISTICS in archive.namelist(), model
+    final = load_policy(run.zoo_model, device="cpu")
+    beside = load_policy(run.checkpoint(300), device="cpu")  # the same step, saved twice
+    np.testing.assert_array_equal(final.normalizer.mean, beside.normalizer.mean)
+    # A copy of the zip alone, in a folder of another name, plays as the run does.
+    elsewhere = tmp_path / "my-walker" / "model.zip"
+    elsewhere.parent.mkdir()
+    shutil.copyfile(run.zoo_model, elsewhere)
+    copied = load_policy(elsewhere, device="cpu")
+    np.testing.assert_array_equal(copied.normalizer.mean, final.normalizer.mean)
+    obs = np.ones(3, dtype=np.float32)
+    np.testing.assert_array_equal(copied.act(obs), final.act(obs))
+
+
+def test_a_normalized_model_without_its_statistics_is_refused(tmp_path):
+    run = pendulum_run(tmp_path, n_timesteps=200)
+    bare = run.path / "bare.zip"
+    with zipfile.ZipFile(run.zoo_model) as source, zipfile.ZipFile(bare, "w") as target:
+        for name in source.namelist():
+            if name != EMBEDDED_STATISTICS:  # as SB3 itself, or an older version, saved it
+                target.writestr(name, source.read(name))
+    with pytest.raises(UsageError, match=r"trained with VecNormalize .* neither in the zip"):
+        load_policy(bare, device="cpu")
+
+
+def test_algo_that_contradicts_the_zip_is_one_line(tmp_path):
+    shipped = REPO / "pretrained" / "ppo" / "MinitaurBulletEnv-v0_1" / "MinitaurBulletEnv-v0.zip"
+    played = run_script("evaluate.py", "--model", str(shipped), "--algo", "a2c",
+                        "--episodes", "1", cwd=tmp_path)  # fmt: skip
+    assert error_lines(played) == [
+        f"evaluate.py: error: {shipped} holds a ppo model, not a2c; drop --algo"
+    ]
+
+
+KILL_AT_SECOND_PROMOTION = """
+import os, sys
+sys.path.insert(0, {repo!r})
+from minitaur_env.training import callbacks
+calls = []
+embed = callbacks.embed_statistics
+def dying_embed(path, normalizer):
+    calls.append(path)
+    if len(calls) == 2:  # the second new best: killed while it is being written
+        with open(path, "r+b") as handle:
+            handle.truncate(100)
+        os._exit(9)
+    embed(path, normalizer)
+callbacks.embed_statistics = dying_embed
+import train
+sys.exit(train.main())
+"""
+
+
+def test_a_kill_while_a_new_best_model_is_written_keeps_the_previous_one(tmp_path):
+    launcher = tmp_path / "launcher.py"
+    launcher.write_text(KILL_AT_SECOND_PROMOTION.format(repo=str(REPO)))
+    args = ["--env", "Pendulum-v1", "-n", "600", "--eval-freq", "100", "--eval-episodes", "1",
+            "--save-freq", "100", "--hyperparams", "learning_starts=50", "batch_size=16",
+            "normalize=true", "policy_kwargs={net_arch: [8]}"]  # fmt: skip
+    killed = run_script(str(launcher), *args, cwd=tmp_path)
+    assert killed.returncode == 9
+    run = RunFolder(tmp_path / "logs" / "sac" / "Pendulum-v1_1")
+    best = load_policy(run.best_model, device="cpu")  # the first best, whole
+    assert best.normalizer is not None
+    with np.load(run.evaluations) as data:  # published whole after each evaluation
+        assert len(data["timesteps"]) >= 1
+    resumed = run_script("train.py", "--resume", str(run.path), cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    with np.load(run.evaluations) as data:
+        steps = list(data["timesteps"])
+    assert steps == sorted(set(steps)) and steps[-1] == 600  # no evaluation twice
+    load_policy(run.best_model, device="cpu")
+
+
+def test_resume_repairs_a_torn_monitor_line_and_an_unreadable_evaluations_file(tmp_path):
+    run = pendulum_run(tmp_path, n_timesteps=200)
+    monitor = next(run.monitor_dir.glob("*.monitor.csv"))
+    monitor.write_text(monitor.read_text() + "-12.5,20")  # a kill mid-line
+    run.evaluations.write_bytes(b"PK\x03\x04 torn")
+    said = []
+    resumed = Experiment.resume(run.path, n_timesteps=300, log=lambda *a, **k: said.append(a[0]))
+    assert resumed.run().status == "completed"
+    assert any("dropped a partial last line" in line for line in said)
+    assert any("evaluations.npz was unreadable" in line for line in said)
+    with np.load(run.evaluations) as data:
+        assert list(data["timesteps"]) == [300]
