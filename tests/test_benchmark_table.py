@@ -58,13 +58,13 @@ def test_keep_runs_refuses_an_unfinished_run_in_one_line(finished_run, tmp_path)
 def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, tmp_path):
     run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/tiny", cwd=tmp_path)
     report = tmp_path / "r" / "tiny" / "seed3" / "final_model_report.json"
-    row = ["--row", f"tiny={tmp_path}/r/tiny/seed*", "--episodes", "2"]
+    row = ["--row", f"tiny={tmp_path}/r/tiny/seed*", "--episodes", "1"]
 
     first = run_script("benchmarks/minitaur_table.py", *row, cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     line = next(line for line in first.stdout.splitlines() if line.startswith("| tiny"))
     judged = json.loads(report.read_text())
-    assert judged["episodes"] == 2 and judged["report_seed"] == 12345
+    assert judged["episodes"] == 1 and judged["report_seed"] == 12345
     assert f"| {judged['mean']:.2f} |" in line  # median of one seed
     # The stored result is reused while the model is the same file...
     report.write_text(json.dumps({**judged, "mean": 123.0}))
@@ -117,7 +117,7 @@ def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_
     run = tmp_path / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
     run_script("benchmarks/keep_runs.py", str(run), "--into", "r/ema", cwd=tmp_path)
     kept = tmp_path / "r" / "ema" / "seed3"
-    args = ["--episodes", "2"]
+    args = ["--episodes", "1"]
     average = run_script("benchmarks/minitaur_table.py", "--row", f"a={kept}", *args, cwd=tmp_path)
     live = run_script(
         "benchmarks/minitaur_table.py", "--row", f"l={kept}#live-actor", *args, cwd=tmp_path

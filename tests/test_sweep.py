@@ -159,14 +159,14 @@ def sweep_command(*args: str) -> list[str]:
 
 
 def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
-    args = [*SWEEP_ARGS, "-n", "3000", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
+    args = [*SWEEP_ARGS, "-n", "2000", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(
         sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, env=env, start_new_session=True,
     )  # fmt: skip
     deadline = time.monotonic() + 900  # generous: a machine 5x slower still gets there
-    while not list(tmp_path.glob("cut/runs/*/sac/*/checkpoints/rl_model_1000_steps.zip")):
+    while not list(tmp_path.glob("cut/runs/*/sac/*/checkpoints/rl_model_500_steps.zip")):
         assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
         time.sleep(0.5)
     os.killpg(process.pid, signal.SIGINT)
@@ -180,7 +180,7 @@ def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
     )  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr
     rows = summarize(tmp_path / "cut")
-    assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 3000
+    assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 2000
     assert list(tmp_path.glob("cut/runs/*/sac/*/progress-resumed-at-*.csv"))  # not restarted
     commands = [f.read_text().splitlines() for f in tmp_path.glob("cut/runs/*/sac/*/command.txt")]
     assert len(commands) == 2
