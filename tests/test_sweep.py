@@ -136,12 +136,27 @@ def test_a_failing_trial_is_one_line_and_the_others_finish(tmp_path):
     assert all("activation_fn" in row["config"] for row in rows if row["seeds_failed"])
 
 
+def test_scientific_notation_without_a_dot_is_a_number_everywhere(tmp_path):
+    from ray.tune.search.sample import Float
+
+    space_file = tmp_path / "space.yml"
+    space_file.write_text("lr: {loguniform: [1e-4, 1e-3]}\ntau: {uniform: [0.0001, 5e-3]}\n")
+    space = load_search_space(space_file)
+    assert isinstance(space["lr"], Float) and (space["lr"].lower, space["lr"].upper) == (1e-4, 1e-3)
+    assert space["tau"].upper == 5e-3
+    (tmp_path / "conf.yml").write_text("Pendulum-v1:\n  tau: 5e-3\n  learning_rate: 1e-4\n")
+    config = ExperimentConfig.resolve("sac", "Pendulum-v1", conf_file=str(tmp_path / "conf.yml"))
+    assert config.hyperparams["tau"] == 5e-3 and config.hyperparams["learning_rate"] == 1e-4
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [
         ("lr: {normal: [0, 1]}", "must be one of {uniform: ...}"),
         ("lr: {loguniform: [0, 1]}", "loguniform needs low > 0"),
         ("lr: {uniform: [1, 0]}", "needs [low, high], low < high"),
+        ("lr: {uniform: [1e-3, 1e-4]}", "needs [low, high], low < high"),
+        ("lr: {uniform: [a, 1]}", "needs [low, high], low < high"),
         ("net: {choice: [{net_arch: [8]}]}", "write {'net_arch': [8]} as a YAML string"),
         ("[1, 2]", "must map hyperparameter names to ranges"),
     ],

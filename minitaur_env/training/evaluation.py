@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 from minitaur_env.onnx_policy import OnnxPolicy
 from minitaur_env.training import ALGORITHM_NAMES, UsageError, env_name, missing_dependency
+from minitaur_env.training.files import read_yaml
 from minitaur_env.training.run_folder import PROVENANCE_FILE, RunFolder
 
 if TYPE_CHECKING:
@@ -151,7 +151,7 @@ def pretrained_models(folder: Path | None = None) -> list[tuple[float, Path]]:
     found = []
     for provenance in folder.glob(f"*/*/{PROVENANCE_FILE}"):
         run = RunFolder(provenance.parent)
-        info = yaml.safe_load(provenance.read_text()) or {}
+        info = read_yaml(provenance) or {}
         if run.zoo_model.is_file():
             found.append((float(info.get("eval_mean_return", -np.inf)), run.zoo_model))
     return sorted(found, key=lambda item: item[0], reverse=True)

@@ -25,6 +25,7 @@ from minitaur_env.training.evaluation import (
     play,
     summarize,
 )
+from minitaur_env.training.files import read_yaml
 from minitaur_env.training.run_folder import (
     HUB_VECNORMALIZE,
     ONNX_POLICY,
@@ -112,7 +113,7 @@ def training_command(model: Path) -> str:
     for folder in (model.parent, model.parent.parent):
         run = RunFolder(folder)
         if run.provenance.is_file():
-            training = yaml.safe_load(run.provenance.read_text()).get("training") or {}
+            training = read_yaml(run.provenance).get("training") or {}
             stages = []  # a model trained on from another (train.py -i): oldest run first
             while training:
                 stages.insert(0, _commands(training))

@@ -11,6 +11,7 @@ from typing import Any
 import yaml
 
 from minitaur_env.training import UsageError, env_name
+from minitaur_env.training.files import parse_yaml, read_yaml
 
 # Keys of a hyperparameter entry that configure the run rather than the algorithm.
 RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "policy")
@@ -32,7 +33,7 @@ def load_hyperparams(
     """
     path = Path(conf_file) if conf_file else hyperparams_file(algo)
     try:
-        table = yaml.safe_load(path.read_text())
+        table = read_yaml(path)
     except OSError as error:
         raise UsageError(f"cannot read hyperparameter file {path}: {error.strerror}") from error
     except yaml.YAMLError as error:
@@ -71,20 +72,10 @@ def parse_overrides(pairs: list[str] | None, flag: str) -> dict[str, Any]:
         if not sep or not key.strip():
             raise UsageError(f"{flag} expects key=value, got {pair!r}")
         try:
-            result[key.strip()] = _number_if_numeric(yaml.safe_load(text))
+            result[key.strip()] = parse_yaml(text)
         except yaml.YAMLError as error:
             raise UsageError(f"{flag} {key}: cannot parse {text!r}: {error}") from error
     return result
-
-
-def _number_if_numeric(value: Any) -> Any:
-    """YAML 1.1 reads ``1e-3`` (no dot) as a string; users mean a number."""
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
 
 
 def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:

@@ -13,7 +13,13 @@ import numpy as np
 import yaml
 
 from minitaur_env.training import UsageError, env_name
-from minitaur_env.training.files import atomic_path, ensure_writable, write_text, write_yaml
+from minitaur_env.training.files import (
+    atomic_path,
+    ensure_writable,
+    read_yaml,
+    write_text,
+    write_yaml,
+)
 
 CONFIG_FILE = "config.yml"
 PROVENANCE_FILE = "provenance.yml"
@@ -279,7 +285,7 @@ class RunFolder:
     # -- contents ---------------------------------------------------------------
     def read_config(self) -> dict[str, Any]:
         try:
-            config = yaml.safe_load(self.config.read_text())
+            config = read_yaml(self.config)
         except (OSError, yaml.YAMLError) as error:
             raise UsageError(f"cannot read {self.config}: {error}") from error
         if not isinstance(config, dict):

@@ -8,6 +8,7 @@ from typing import Any
 import yaml
 
 from minitaur_env.training import UsageError
+from minitaur_env.training.files import parse_yaml, read_yaml
 
 SEARCH_KINDS = ("uniform", "loguniform", "choice", "int")
 
@@ -29,7 +30,7 @@ def load_search_space(path: str | Path) -> dict[str, Any]:
     from ray import tune
 
     try:
-        table = yaml.safe_load(Path(path).read_text())
+        table = read_yaml(path)
     except OSError as error:
         raise UsageError(f"cannot read search space {path}: {error.strerror}") from error
     except yaml.YAMLError as error:
@@ -56,7 +57,10 @@ def load_search_space(path: str | Path) -> dict[str, Any]:
                 )
             space[name] = tune.choice(values)
             continue
-        if not (isinstance(values, list) and len(values) == 2 and values[0] < values[1]):
+        numbers = isinstance(values, list) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
+        )
+        if not (numbers and len(values) == 2 and values[0] < values[1]):
             raise UsageError(f"search space {path}: {name} {kind} needs [low, high], low < high")
         low, high = values
         if kind == "uniform":
@@ -72,7 +76,7 @@ def load_search_space(path: str | Path) -> dict[str, Any]:
 
 def decode(value: Any) -> Any:
     if isinstance(value, str) and value.strip()[:1] in ("{", "["):
-        return yaml.safe_load(value)
+        return parse_yaml(value)
     return value
 
 

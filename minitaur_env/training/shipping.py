@@ -17,12 +17,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from minitaur_env.training import DEFAULT_ENV, UsageError
 from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.evaluation import load_policy, play, summarize
-from minitaur_env.training.files import write_yaml
+from minitaur_env.training.files import read_yaml, write_yaml
 from minitaur_env.training.onnx_export import export_onnx
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import copy_statistics
@@ -240,7 +239,7 @@ def origin_of(trained_agent: str | None) -> dict | None:
     if not trained_agent:
         return None
     provenance = RunFolder.of_model(Path(trained_agent)).provenance
-    earlier = yaml.safe_load(provenance.read_text()) if provenance.is_file() else {}
+    earlier = read_yaml(provenance) if provenance.is_file() else {}
     return {"trained_agent": trained_agent, **earlier.get("training", {})}
 
 

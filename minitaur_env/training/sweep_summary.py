@@ -5,9 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-import yaml
-
 from minitaur_env.training import UsageError
+from minitaur_env.training.files import read_yaml
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.trial import RUNS, TRIAL_FILE
 
@@ -41,7 +40,7 @@ def summarize(folder: str | Path, milestones: Sequence[float] | None = None) -> 
         milestones = default_milestones(env_id) if env_id is not None else ()
     groups: dict[str, GroupSummary] = {}
     for trial_file, run in run_of.items():
-        trial = yaml.safe_load(trial_file.read_text())
+        trial = read_yaml(trial_file)
         group = groups.setdefault(
             trial["group"], GroupSummary(trial["group"], [], [], tuple(milestones))
         )

@@ -23,10 +23,9 @@ import os
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from minitaur_env.training import UsageError
 from minitaur_env.training.config import ExperimentConfig
+from minitaur_env.training.files import read_yaml
 from minitaur_env.training.trial import METRIC, RUNS, TRIAL_FILE, run_trial
 
 
@@ -147,7 +146,7 @@ class Sweep:
         return [
             path.parent
             for path in sorted((self.folder / RUNS).glob(f"*/{TRIAL_FILE}"))
-            if yaml.safe_load(path.read_text())["status"] == "running"
+            if read_yaml(path)["status"] == "running"
         ]
 
     def run(self, resume: bool = False) -> list[str]:
