@@ -120,3 +120,26 @@ def test_resume_repairs_a_torn_monitor_line_and_an_unreadable_evaluations_file(t
     assert any("evaluations.npz was unreadable" in line for line in said)
     with np.load(run.evaluations) as data:
         assert list(data["timesteps"]) == [300]
+
+
+def test_two_processes_never_train_one_run_and_a_killed_one_leaves_no_lock(tmp_path):
+    import subprocess
+    import sys
+
+    from minitaur_env.training.files import exclusive
+
+    run = pendulum_run(tmp_path, n_timesteps=200)
+    # held as a second train.py --resume of the same run would hold it
+    held = exclusive(run.lock_file, "probe")
+    with held, pytest.raises(UsageError, match="is in use by another process"):
+        Experiment.resume(run.path, n_timesteps=300).run()
+    # a process killed while holding the lock does not leave it stuck
+    holder = (
+        "import os, sys; sys.path.insert(0, sys.argv[2])\n"
+        "from pathlib import Path\nfrom minitaur_env.training.files import exclusive\n"
+        "with exclusive(Path(sys.argv[1]), 'x'):\n    os._exit(9)\n"
+    )
+    killed = subprocess.run([sys.executable, "-c", holder, str(run.lock_file), str(REPO)],
+                            timeout=120)  # fmt: skip
+    assert killed.returncode == 9
+    assert Experiment.resume(run.path, n_timesteps=300).run().status == "completed"

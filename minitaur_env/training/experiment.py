@@ -39,7 +39,7 @@ from minitaur_env.training.checkpoints import (
 )
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_eval_env, make_training_env
-from minitaur_env.training.files import ensure_writable
+from minitaur_env.training.files import ensure_writable, exclusive
 from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.policies import resolve_policy
 from minitaur_env.training.results import RunResult
@@ -299,7 +299,8 @@ class Experiment:
         set_torch_threads(self.num_threads, config.policy)
         run = self.run_folder
         started = time.perf_counter()
-        with sigterm_as_exception():
+        lock = exclusive(run.lock_file, f"run folder {run.path}")
+        with sigterm_as_exception(), lock:
             try:
                 self.build()
                 callbacks = self._callbacks()

@@ -209,6 +209,11 @@ class RunFolder:
         return self.path / "videos"
 
     @property
+    def lock_file(self) -> Path:
+        """Held by the process that trains the run (``files.exclusive``)."""
+        return self.path / ".lock"
+
+    @property
     def staging_dir(self) -> Path:
         """Where files SB3 writes in place are written before they replace the run's."""
         return self.path / ".staging"
