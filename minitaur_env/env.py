@@ -502,8 +502,9 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     def step(
         self, action: np.ndarray
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        self._live_sim()  # a closed env says so, rather than asking for a reset
         robot = self._robot
-        if robot is None or self._sim is None:
+        if robot is None:
             raise ResetNeeded("call reset() before step()")
         targets = leg_model_to_motor_angles(self._checked_action(action))
         sim, history = self._sim, self._history
@@ -563,7 +564,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             return None
         if self.render_mode == "human":
             return None
-        if self._robot is None or self._sim is None:
+        self._live_sim()
+        if self._robot is None:
             raise ResetNeeded("call reset() before render()")
         position, _ = self._robot.base_pose()
         return self._sim.render(

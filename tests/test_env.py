@@ -386,8 +386,9 @@ def test_close_is_idempotent_and_frees_the_client():
     env.close()
     env.close()
     assert not pybullet.isConnected(physicsClientId=client)
-    with pytest.raises(RuntimeError, match="closed"):
-        env.reset()
+    for call in (env.reset, lambda: env.step(np.zeros(8))):  # not "call reset()"
+        with pytest.raises(RuntimeError, match="the env is closed; make a new one"):
+            call()
 
 
 def test_200_envs_leave_no_client_connected_and_memory_flat():
