@@ -277,3 +277,24 @@ def test_exp_id_picks_that_run_of_the_log_folder(tmp_path):
     assert error_lines(missing) == [
         "evaluate.py: error: no run MinitaurBulletEnv-v0_3 under logs/ppo/"
     ]
+
+
+def test_load_last_checkpoint_skips_a_torn_newest_one(tmp_path):
+    import shutil
+
+    shipped = Path(__file__).resolve().parents[1] / "pretrained" / "ppo" / "MinitaurBulletEnv-v0_1"
+    run = tmp_path / "logs" / "ppo" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(shipped, run)
+    (run / "checkpoints").mkdir()
+    shutil.copyfile(
+        shipped / "MinitaurBulletEnv-v0.zip", run / "checkpoints/rl_model_100_steps.zip"
+    )
+    for suffix in (".pkl", ".json"):  # its statistics, as a checkpoint keeps them
+        saved = run / "checkpoints" / f"rl_model_vecnormalize_100_steps{suffix}"
+        shutil.copyfile(shipped / "MinitaurBulletEnv-v0" / f"vecnormalize{suffix}", saved)
+    (run / "checkpoints" / "rl_model_200_steps.zip").write_bytes(b"PK\x03\x04 torn by a kill")
+    played = run_script("evaluate.py", "-f", "logs", "--algo", "ppo", "--env",
+                        "MinitaurBulletEnv-v0", "--load-last-checkpoint", "--episodes", "1",
+                        "--env-kwargs", "max_episode_steps=20", cwd=tmp_path)  # fmt: skip
+    assert played.returncode == 0, played.stderr
+    assert "rl_model_100_steps.zip" in played.stdout

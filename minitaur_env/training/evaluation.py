@@ -201,10 +201,11 @@ def find_model(
     if load_checkpoint is not None:
         path = RunFolder(run).checkpoint(load_checkpoint)
     elif load_last_checkpoint:
-        found = RunFolder(run).checkpoints()
+        # The newest whole one: a kill (in versions that wrote in place) could tear the last.
+        found = [p for _, p in RunFolder(run).checkpoints() if _whole_zip(p)]
         if not found:
-            raise UsageError(f"{run} has no checkpoint")
-        path = found[0][1]
+            raise UsageError(f"{run} has no readable checkpoint")
+        path = found[0]
     elif load_best:
         path = RunFolder(run).best_model
     else:
@@ -212,6 +213,14 @@ def find_model(
     if not path.is_file():
         raise UsageError(f"model file not found: {path}")
     return path
+
+
+def _whole_zip(path: Path) -> bool:
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return "data" in archive.namelist() and archive.testzip() is None
+    except (zipfile.BadZipFile, OSError):
+        return False
 
 
 def run_episodes(
