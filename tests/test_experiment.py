@@ -413,3 +413,28 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo):
     assert entry["normalize"] is True and entry["n_timesteps"] <= 300_000
     result = Experiment.create(config, tmp_path, verbose=0).run()
     assert result.status == "completed" and result.num_timesteps == 64
+
+
+@pytest.mark.parametrize(
+    ("hyperparams", "message"),
+    [
+        ({"batch_size": -5}, "batch_size=-5: must be an integer >= 1"),
+        ({"batch_size": 0}, "batch_size=0: must be an integer >= 1"),
+        ({"gamma": 2}, "gamma=2: must be a number in (0, 1]"),
+        ({"tau": 0}, "tau=0: must be a number in (0, 1]"),
+        ({"buffer_size": 0}, "buffer_size=0: must be an integer >= batch_size (256)"),
+        ({"buffer_size": 100, "batch_size": 256}, "must be an integer >= batch_size (256)"),
+    ],
+)
+def test_hyperparameters_sb3_accepts_but_fails_on_later_are_refused_first(hyperparams, message):
+    with pytest.raises(UsageError) as refused:
+        ExperimentConfig.resolve("sac", "Pendulum-v1", hyperparams={"batch_size": 256,
+                                                                   **hyperparams})  # fmt: skip
+    assert str(refused.value).endswith(message)
+
+
+def test_hyperparameters_in_range_pass():  # the control: the edges are allowed
+    config = ExperimentConfig.resolve(
+        "sac", "Pendulum-v1", hyperparams={"gamma": 1, "tau": 1, "batch_size": 1, "buffer_size": 1}
+    )
+    assert config.hyperparams["gamma"] == 1

@@ -93,6 +93,7 @@ class ExperimentConfig:
             raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}")
         algorithm_class(self.algo, self.backend)
         algorithm_kwargs(self.hyperparams)
+        _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
@@ -118,3 +119,26 @@ class ExperimentConfig:
         if config.vec_env not in VEC_ENVS:  # e.g. "subproc", which grouped replaced
             config.vec_env = "auto"
         return config
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_ranges(hyperparams: dict[str, Any]) -> None:
+    """What SB3 accepts and only fails on later, at the first gradient step or never: a
+    batch of 0, a buffer smaller than a batch, gamma or tau outside (0, 1]."""
+    rules = {
+        "batch_size": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
+                       "an integer >= 1"),
+        "gamma": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+        "tau": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+    }  # fmt: skip
+    for name, (valid, rule) in rules.items():
+        if name in hyperparams and not valid(hyperparams[name]):
+            raise UsageError(f"--hyperparams {name}={hyperparams[name]!r}: must be {rule}")
+    buffer, batch = hyperparams.get("buffer_size"), hyperparams.get("batch_size", 1)
+    if buffer is not None and not (isinstance(buffer, int) and buffer >= batch):
+        raise UsageError(
+            f"--hyperparams buffer_size={buffer!r}: must be an integer >= batch_size ({batch})"
+        )
