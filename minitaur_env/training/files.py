@@ -61,8 +61,14 @@ def parse_yaml(text: str) -> Any:
     return yaml.load(text, Loader=_Loader)
 
 
-def read_yaml(path: str | os.PathLike[str]) -> Any:
-    return parse_yaml(Path(path).read_text())
+def read_yaml(path: str | os.PathLike[str], what: str = "YAML file") -> Any:
+    """The file's YAML, or a UsageError naming ``what`` could not be read or parsed."""
+    try:
+        return parse_yaml(Path(path).read_text())
+    except OSError as error:
+        raise UsageError(f"cannot read {what} {path}: {error.strerror or error}") from error
+    except yaml.YAMLError as error:
+        raise UsageError(f"{what} {path} is not valid YAML: {error}") from error
 
 
 def write_text(path: Path, text: str) -> None:

@@ -32,12 +32,7 @@ def load_hyperparams(
     with ``base: <key>`` to start from it.
     """
     path = Path(conf_file) if conf_file else hyperparams_file(algo)
-    try:
-        table = read_yaml(path)
-    except OSError as error:
-        raise UsageError(f"cannot read hyperparameter file {path}: {error.strerror}") from error
-    except yaml.YAMLError as error:
-        raise UsageError(f"hyperparameter file {path} is not valid YAML: {error}") from error
+    table = read_yaml(path, "hyperparameter file")
     if not isinstance(table, dict):
         raise UsageError(f"hyperparameter file {path} must map env ids to settings")
     if entry is not None:

@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from minitaur_env.training import UsageError, env_name
 from minitaur_env.training.files import (
@@ -289,10 +288,7 @@ class RunFolder:
 
     # -- contents ---------------------------------------------------------------
     def read_config(self) -> dict[str, Any]:
-        try:
-            config = read_yaml(self.config)
-        except (OSError, yaml.YAMLError) as error:
-            raise UsageError(f"cannot read {self.config}: {error}") from error
+        config = read_yaml(self.config, "run configuration")
         if not isinstance(config, dict):
             raise UsageError(f"{self.config} does not hold a run configuration")
         return config

@@ -5,8 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from minitaur_env.training import UsageError
 from minitaur_env.training.files import parse_yaml, read_yaml
 
@@ -29,12 +27,7 @@ def load_search_space(path: str | Path) -> dict[str, Any]:
     """
     from ray import tune
 
-    try:
-        table = read_yaml(path)
-    except OSError as error:
-        raise UsageError(f"cannot read search space {path}: {error.strerror}") from error
-    except yaml.YAMLError as error:
-        raise UsageError(f"search space {path} is not valid YAML: {error}") from error
+    table = read_yaml(path, "search space")
     if not isinstance(table, dict) or not table:
         raise UsageError(f"search space {path} must map hyperparameter names to ranges")
     space = {}
