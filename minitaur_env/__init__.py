@@ -10,8 +10,16 @@ from gymnasium.envs.registration import register, registry
 
 from minitaur_env.env import MinitaurBulletDuckEnv, MinitaurBulletEnv
 from minitaur_env.randomization import DynamicsRanges, Pushes
+from minitaur_env.settings import Realism
 
-__all__ = ["ENV_IDS", "DynamicsRanges", "MinitaurBulletDuckEnv", "MinitaurBulletEnv", "Pushes"]
+__all__ = [
+    "ENV_IDS",
+    "DynamicsRanges",
+    "MinitaurBulletDuckEnv",
+    "MinitaurBulletEnv",
+    "Pushes",
+    "Realism",
+]
 __version__ = "0.1.0"
 
 ENV_IDS = (

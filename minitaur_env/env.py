@@ -12,6 +12,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
+from minitaur_env.checks import boolean, choice, integer, number
 from minitaur_env.motor import OBSERVED_TORQUE_LIMIT, SPEED_LIMIT
 from minitaur_env.randomization import DynamicsRanges, Pushes, apply_dynamics, sample_dynamics
 from minitaur_env.robot import (
@@ -34,6 +35,7 @@ from minitaur_env.sensors import (
     euler_to_quaternion,
     quaternion_to_euler,
 )
+from minitaur_env.settings import Camera, Realism, RewardWeights
 from minitaur_env.sim import DATA_PATH, BulletSim
 
 CONTROL_TIME_STEP = 0.01  # s, one action at 100 Hz
@@ -69,11 +71,6 @@ IMU_OBSERVATION_BOUND = np.concatenate(
 ).astype(np.float32)
 Observation = Literal["classic", "imu"]
 OBSERVATIONS: tuple[str, ...] = ("classic", "imu")
-
-
-def _require(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
 
 
 class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -146,6 +143,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``randomize_dynamics`` (True): re-draw masses, battery voltage, motor
       damping and foot friction at every reset, within ``dynamics_ranges``.
     - ``dynamics_ranges``: a :class:`DynamicsRanges` (classic ranges by default).
+      Bools must be bools, and every number is checked against a physical range; an
+      error names the argument, the value and the range.
     - ``observation`` ("classic"): "classic" or "imu" (above).
     - ``distance_weight`` (1.0), ``energy_weight`` (0.005), ``drift_weight`` (0.0),
       ``shake_weight`` (0.0): reward weights; the last three must be >= 0.
@@ -156,22 +155,10 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``motor_kp``, ``motor_kd`` (None: 1.0/0.02, 8.0/0.3 or 1.0/1.0 by mode).
     - ``motor_overheat_protection`` (True), ``motor_velocity_limit`` (inf rad/s).
     - ``action_repeat`` (1): control steps each action is held for.
-
-    Sim-to-real (all off by default; Tan et al. 2018):
-
-    - ``control_time_step`` (0.01 s): the control step, a multiple of the 2 ms physics
-      step (with "position" control, the physics step itself). The return sums per-step
-      rewards, so it grows with the time an episode of 1000 steps lasts.
-    - ``control_latency`` (0 s): observations are this old, interpolated between the
-      physics steps' sensor readings as the classic reactive env did.
-    - ``pd_latency`` (0 s): the motors' PD loop sees angles and velocities this old (the
-      motor's back-EMF still uses the true velocity); needs a motor model.
-    - ``imu_noise_stdev`` (0 rad): Gaussian noise on the IMU's roll, pitch and yaw (and
-      rates); ``imu_bias`` (0 rad, a number or one per axis) is added to the angles. In
-      the classic observation they reach the quaternion through the Euler angles.
-    - ``pushes`` (None): ``True`` for Tan et al.'s pushes (130-220 N, horizontal, in a
-      random direction, for 0.06 s every 1.2 s), or a :class:`Pushes` / mapping of its
-      fields; the force of the step is ``info["push_force"]``.
+    - ``realism`` (None): a :class:`Realism`, or a mapping of its fields: control step,
+      control and PD latency, IMU noise and bias, pushes (Tan et al. 2018; all off by
+      default). Each field is also a keyword of its own: ``control_time_step``,
+      ``control_latency``, ``pd_latency``, ``imu_noise_stdev``, ``imu_bias``, ``pushes``.
     - ``dynamics_ranges`` also takes ``"tan2018"`` (:meth:`DynamicsRanges.tan2018`:
       inertia, motor strength, joint friction, control step, latency and IMU errors too)
       or a mapping of :class:`DynamicsRanges` fields, so ``--env-kwargs`` can state it.
@@ -220,11 +207,12 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         motor_overheat_protection: bool = True,
         motor_velocity_limit: float = math.inf,
         action_repeat: int = 1,
-        control_time_step: float = CONTROL_TIME_STEP,
-        control_latency: float = 0.0,
-        pd_latency: float = 0.0,
-        imu_noise_stdev: float = 0.0,
-        imu_bias: float | Sequence[float] = 0.0,
+        realism: Realism | dict[str, Any] | None = None,
+        control_time_step: float | None = None,
+        control_latency: float | None = None,
+        pd_latency: float | None = None,
+        imu_noise_stdev: float | None = None,
+        imu_bias: float | Sequence[float] | None = None,
         pushes: Pushes | dict[str, Any] | bool | None = None,
         observation: Observation = "classic",
         self_collision: bool = True,
@@ -237,110 +225,42 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         camera_pitch: float = -30.0,
         urdf_root: str = DATA_PATH,
     ) -> None:
-        _require(
-            render_mode is None or render_mode in self.metadata["render_modes"],
-            f"render_mode must be None or one of {self.metadata['render_modes']}, "
-            f"got {render_mode!r}",
+        self.render_mode = choice(
+            "render_mode", render_mode, (None, *self.metadata["render_modes"])
         )
-        _require(
-            motor_control in MOTOR_CONTROLS,
-            f"motor_control must be one of {MOTOR_CONTROLS}, got {motor_control!r}",
+        self.observation = choice("observation", observation, OBSERVATIONS)
+        self.motor_control = choice("motor_control", motor_control, MOTOR_CONTROLS)
+        self.randomize_dynamics = boolean("randomize_dynamics", randomize_dynamics)
+        self.motor_overheat_protection = boolean(
+            "motor_overheat_protection", motor_overheat_protection
         )
-        _require(math.isfinite(distance_weight), "distance_weight must be finite")
-        for name, weight in (
-            ("energy_weight", energy_weight),
-            ("drift_weight", drift_weight),
-            ("shake_weight", shake_weight),
-            ("observation_noise_stdev", observation_noise_stdev),
-        ):
-            _require(
-                math.isfinite(weight) and weight >= 0,
-                f"{name} must be finite and >= 0, got {weight}",
-            )
-        _require(distance_limit > 0, f"distance_limit must be > 0, got {distance_limit}")
-        _require(
-            motor_velocity_limit > 0,
-            f"motor_velocity_limit must be > 0, got {motor_velocity_limit}",
+        self.self_collision = boolean("self_collision", self_collision)
+        self.on_rack = boolean("on_rack", on_rack)
+        self.hard_reset = boolean("hard_reset", hard_reset)
+        self.dynamics_ranges = DynamicsRanges.coerce(dynamics_ranges)
+        self.reward_weights = RewardWeights(
+            distance_weight, energy_weight, drift_weight, shake_weight
         )
-        _require(
-            isinstance(action_repeat, int) and action_repeat >= 1,
-            f"action_repeat must be an int >= 1, got {action_repeat!r}",
+        self.realism = Realism.coerce(
+            realism, control_time_step=control_time_step, control_latency=control_latency,
+            pd_latency=pd_latency, imu_noise_stdev=imu_noise_stdev, imu_bias=imu_bias,
+            pushes=pushes,
+        )  # fmt: skip
+        self.camera = Camera(width, height, camera_distance, camera_yaw, camera_pitch)
+        self.distance_limit = number("distance_limit", distance_limit, 0, math.inf, low_open=True)
+        self.observation_noise_stdev = number(
+            "observation_noise_stdev", observation_noise_stdev, 0, 10
         )
-        for name, size in (("width", width), ("height", height)):
-            _require(
-                isinstance(size, int) and 0 < size <= 4096,
-                f"{name} must be an int in 1..4096, got {size!r}",
-            )
-        _require(camera_distance > 0, f"camera_distance must be > 0, got {camera_distance}")
-        _require(
-            observation in OBSERVATIONS,
-            f"observation must be one of {OBSERVATIONS}, got {observation!r}",
+        self.motor_velocity_limit = number(
+            "motor_velocity_limit", motor_velocity_limit, 0, math.inf, low_open=True, unit="rad/s"
         )
-        for name, value in (
-            ("control_latency", control_latency),
-            ("pd_latency", pd_latency),
-            ("imu_noise_stdev", imu_noise_stdev),
-        ):
-            _require(
-                math.isfinite(value) and value >= 0, f"{name} must be finite and >= 0, got {value}"
-            )
-        bias = np.broadcast_to(np.asarray(imu_bias, dtype=float), (3,)).copy()
-        _require(bool(np.all(np.isfinite(bias))), f"imu_bias must be finite, got {imu_bias}")
-        ranges = DynamicsRanges.coerce(dynamics_ranges)
-        self.pushes = Pushes.coerce(pushes)
-        # A motor model needs small physics steps to stay stable; PyBullet's own
-        # position servos run one physics step per control step.
-        if motor_control == "position":
-            self.physics_time_step = control_time_step
-            _require(
-                pd_latency == 0 and ranges.control_step is None,
-                "pd_latency and a randomized control_step need a motor model "
-                "(motor_control 'accurate' or 'pd')",
-            )
-        else:
-            self.physics_time_step = CONTROL_TIME_STEP / SUBSTEPS
-        substeps = round(control_time_step / self.physics_time_step)
-        _require(
-            control_time_step > 0
-            and substeps >= 1
-            and abs(substeps * self.physics_time_step - control_time_step) < 1e-9,
-            f"control_time_step must be a positive multiple of the {self.physics_time_step} s "
-            f"physics step, got {control_time_step}",
-        )
+        self.action_repeat = integer("action_repeat", action_repeat, 1, 1000)
         default_kp, default_kd = DEFAULT_GAINS[motor_control]
-        self._kp = default_kp if motor_kp is None else motor_kp
-        self._kd = default_kd if motor_kd is None else motor_kd
-        _require(self._kp >= 0 and self._kd >= 0, "motor_kp and motor_kd must be >= 0")
-
-        self.render_mode = render_mode
-        self.randomize_dynamics = randomize_dynamics
-        self.dynamics_ranges = ranges
-        self.distance_weight = distance_weight
-        self.energy_weight = energy_weight
-        self.drift_weight = drift_weight
-        self.shake_weight = shake_weight
-        self.distance_limit = distance_limit
-        self.observation_noise_stdev = observation_noise_stdev
-        self.motor_control = motor_control
-        self.motor_overheat_protection = motor_overheat_protection
-        self.motor_velocity_limit = motor_velocity_limit
-        self.action_repeat = action_repeat
-        self.control_time_step = control_time_step
-        self.control_latency = control_latency
-        self.pd_latency = pd_latency
-        self.imu_noise_stdev = imu_noise_stdev
-        self.imu_bias = bias
-        self.observation = observation
-        self.self_collision = self_collision
-        self.on_rack = on_rack
-        self.hard_reset = hard_reset
-        self.width = width
-        self.height = height
-        self.camera_distance = camera_distance
-        self.camera_yaw = camera_yaw
-        self.camera_pitch = camera_pitch
+        self._kp = number("motor_kp", default_kp if motor_kp is None else motor_kp, 0, 1e4)
+        self._kd = number("motor_kd", default_kd if motor_kd is None else motor_kd, 0, 1e4)
         self.urdf_root = urdf_root
 
+        substeps = self._check_time_steps()
         # The classic solver budget: 300 iterations per 10 ms, whatever the control step.
         self._solver_iterations = round(
             SOLVER_ITERATIONS * self.physics_time_step / CONTROL_TIME_STEP
@@ -353,13 +273,11 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = spaces.Box(-bound, bound, dtype=np.float32)
 
         # Delays need the readings of past physics steps; without them none are kept.
-        max_delay = max(control_latency, pd_latency)
-        if randomize_dynamics and ranges.control_latency is not None:
-            max_delay = max(max_delay, ranges.control_latency[1])
+        max_delay = max(self.realism.control_latency, self.realism.pd_latency)
+        if self.randomize_dynamics and self.dynamics_ranges.control_latency is not None:
+            max_delay = max(max_delay, self.dynamics_ranges.control_latency[1])
         self._history = SensorHistory(self.physics_time_step, max_delay) if max_delay > 0 else None
-        self._episode_control_latency = control_latency
-        self._episode_imu_noise = imu_noise_stdev
-        self._episode_imu_bias = bias
+        self._draw_episode_settings(None)
         self._physics_step_count = 0
         self._push_force = np.zeros(3)
 
@@ -371,11 +289,33 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._previous_x = 0.0
         self._last_frame_time = 0.0
 
+    def _check_time_steps(self) -> int:
+        """Set the physics step; return the physics steps per control step."""
+        control_time_step = self.realism.control_time_step
+        # A motor model needs small physics steps to stay stable; PyBullet's own
+        # position servos run one physics step per control step.
+        if self.motor_control == "position":
+            self.physics_time_step = control_time_step
+            if self.realism.pd_latency > 0 or self.dynamics_ranges.control_step is not None:
+                raise ValueError(
+                    "pd_latency and a randomized control_step need a motor model "
+                    "(motor_control 'accurate' or 'pd')"
+                )
+        else:
+            self.physics_time_step = CONTROL_TIME_STEP / SUBSTEPS
+        substeps = round(control_time_step / self.physics_time_step)
+        if substeps < 1 or abs(substeps * self.physics_time_step - control_time_step) > 1e-9:
+            raise ValueError(
+                f"control_time_step must be a positive multiple of the {self.physics_time_step} s "
+                f"physics step, got {control_time_step}"
+            )
+        return substeps
+
     def _set_control_step(self, substeps: int) -> None:
         self._physics_steps_per_action = substeps * self.action_repeat
         control_step = self.physics_time_step * substeps
-        if abs(control_step - self.control_time_step) < 1e-12:
-            control_step = self.control_time_step  # exactly the classic 0.01 by default
+        if abs(control_step - self.realism.control_time_step) < 1e-12:
+            control_step = self.realism.control_time_step  # exactly the classic 0.01 by default
         self.dt = control_step * self.action_repeat
 
     # -- scene -------------------------------------------------------------------
@@ -459,9 +399,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             robot.observed_torques = torques.copy()
 
         if sim.gui:
-            sim.follow_with_gui_camera(
-                [0, 0, 0], self.camera_distance, self.camera_yaw, self.camera_pitch
-            )
+            sim.follow_with_gui_camera([0, 0, 0], *self._camera_view())
         position, _ = robot.base_pose()
         # The classic reward measures the first step's displacement from the origin.
         self._last_base_position = np.zeros(3)
@@ -476,8 +414,10 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _draw_episode_settings(self, dynamics: Any) -> None:
         """This episode's control step, latency and IMU errors: drawn, else the fixed ones."""
-        substeps = round(self.control_time_step / self.physics_time_step)
-        latency, noise, bias = self.control_latency, self.imu_noise_stdev, self.imu_bias
+        realism = self.realism
+        substeps = round(realism.control_time_step / self.physics_time_step)
+        latency, noise = realism.control_latency, realism.imu_noise_stdev
+        bias = np.array(realism.imu_bias)
         if dynamics is not None:
             if dynamics.control_step is not None:
                 substeps = max(1, round(dynamics.control_step / self.physics_time_step))
@@ -508,14 +448,15 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ResetNeeded("call reset() before step()")
         targets = leg_model_to_motor_angles(self._checked_action(action))
         sim, history = self._sim, self._history
+        pd_latency, pushes = self.realism.pd_latency, self.realism.pushes
         for _ in range(self._physics_steps_per_action):
             pd_state = None
-            if self.pd_latency > 0 and history is not None:
-                late = history.delayed(self.pd_latency)
+            if pd_latency > 0 and history is not None:
+                late = history.delayed(pd_latency)
                 pd_state = (late[ANGLES], late[VELOCITIES])
             robot.apply_motor_targets(targets, pd_state)
-            if self.pushes is not None:
-                self._push(sim, robot)
+            if pushes is not None:
+                self._push(sim, robot, pushes)
             sim.step()
             self._physics_step_count += 1
             if history is not None:
@@ -526,17 +467,15 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         reward, info = self._reward(np.array(position), state)
         terminated = self._is_terminated(position, orientation)
         info["motors_enabled"] = robot.motors_enabled.copy()
-        if self.pushes is not None:
+        if pushes is not None:
             info["push_force"] = self._push_force.copy()
         if self.render_mode == "human":
             self._show_in_gui(position)
         sensed = state if history is None and self.observation == "classic" else None
         return self._observation(self._sensed(robot, sensed)), reward, terminated, False, info
 
-    def _push(self, sim: BulletSim, robot: Minitaur) -> None:
+    def _push(self, sim: BulletSim, robot: Minitaur, pushes: Pushes) -> None:
         """Tan et al.'s pushes: a new random force every interval, held for the duration."""
-        pushes = self.pushes
-        assert pushes is not None
         interval = max(1, round(pushes.interval / self.physics_time_step))
         duration = max(1, round(pushes.duration / self.physics_time_step))
         step = self._physics_step_count
@@ -568,14 +507,11 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._robot is None:
             raise ResetNeeded("call reset() before render()")
         position, _ = self._robot.base_pose()
-        return self._sim.render(
-            position,
-            self.width,
-            self.height,
-            self.camera_distance,
-            self.camera_yaw,
-            self.camera_pitch,
-        )
+        camera = self.camera
+        return self._sim.render(position, camera.width, camera.height, *self._camera_view())
+
+    def _camera_view(self) -> tuple[float, float, float]:
+        return self.camera.distance, self.camera.yaw, self.camera.pitch
 
     def close(self) -> None:
         if self._sim is not None:
@@ -585,10 +521,11 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # -- internals -------------------------------------------------------------
     def _checked_action(self, action: Any) -> np.ndarray:
-        try:
-            action = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"action must be numeric, got {action!r}") from error
+        given = np.asarray(action)
+        # Bools and complex numbers convert to floats silently; an action is a real number.
+        if given.dtype.kind not in "iuf":
+            raise ValueError(f"action must be real numbers, got {given.dtype} {action!r}")
+        action = given.astype(np.float64, copy=False)
         if action.shape != (NUM_MOTORS,):
             raise ValueError(f"action must have shape ({NUM_MOTORS},), got {action.shape}")
         if not np.all(np.isfinite(action)):
@@ -642,11 +579,12 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         torques = state[2 * NUM_MOTORS : 3 * NUM_MOTORS]
         velocities = state[NUM_MOTORS : 2 * NUM_MOTORS]
         energy = abs(float(np.dot(torques, velocities))) * self.physics_time_step
+        weights = self.reward_weights
         info: dict[str, Any] = {
-            "reward_forward": self.distance_weight * float(displacement[0]),
-            "reward_energy": -self.energy_weight * energy,
-            "reward_drift": -self.drift_weight * abs(float(displacement[1])),
-            "reward_shake": -self.shake_weight * abs(float(displacement[2])),
+            "reward_forward": weights.distance * float(displacement[0]),
+            "reward_energy": -weights.energy * energy,
+            "reward_drift": -weights.drift * abs(float(displacement[1])),
+            "reward_shake": -weights.shake * abs(float(displacement[2])),
         }
         reward = (
             info["reward_forward"]
@@ -677,9 +615,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _show_in_gui(self, position: tuple[float, ...]) -> None:
         sim = self._live_sim()
-        sim.follow_with_gui_camera(
-            position, self.camera_distance, self.camera_yaw, self.camera_pitch
-        )
+        sim.follow_with_gui_camera(position, *self._camera_view())
         # Pace the GUI at real time; a faster loop would look like fast-forward.
         delay = self.dt - (time.perf_counter() - self._last_frame_time)
         if delay > 0:

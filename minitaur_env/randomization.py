@@ -8,9 +8,29 @@ from typing import Any
 
 import numpy as np
 
+from minitaur_env.checks import number
 from minitaur_env.robot import NUM_MOTORS, Minitaur
 
 Range = tuple[float, float]
+
+# What each range accepts: (lowest, highest, unit). Generous, but physical: a control step
+# over 0.1 s is almost surely milliseconds, and a latency over 1 s no robot would walk with.
+RANGE_BOUNDS: dict[str, tuple[float, float, str]] = {
+    "base_mass_scale": (0.0, 10.0, ""),
+    "leg_mass_scale": (0.0, 10.0, ""),
+    "battery_voltage": (0.0, 50.0, "V"),
+    "motor_viscous_damping": (0.0, 1.0, "N m s/rad"),
+    "foot_friction": (0.0, 10.0, ""),
+    "inertia_scale": (0.0, 10.0, ""),
+    "motor_strength": (0.0, 10.0, ""),
+    "joint_friction": (0.0, 100.0, "N m"),
+    "control_step": (0.0, 0.1, "s"),
+    "control_latency": (0.0, 1.0, "s"),
+    "imu_noise_stdev": (0.0, 1.0, "rad"),
+    "imu_bias": (-1.0, 1.0, "rad"),
+}
+POSITIVE_RANGES = {"base_mass_scale", "leg_mass_scale", "inertia_scale", "battery_voltage"}
+MAX_PUSH_FORCE = 10_000.0  # N
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,20 +72,19 @@ class DynamicsRanges:
             value = getattr(self, field.name)
             if value is None and field.default is None:
                 continue
+            low, high, unit = RANGE_BOUNDS[field.name]
+            name = f"DynamicsRanges.{field.name}"
             try:
-                low, high = (float(v) for v in value)
+                first, last = value
             except (TypeError, ValueError):
-                raise ValueError(
-                    f"DynamicsRanges.{field.name} must be (low, high), got {value!r}"
-                ) from None
-            lowest = -math.inf if field.name == "imu_bias" else 0.0
-            if not (np.isfinite(low) and np.isfinite(high) and lowest <= low <= high):
-                bound = "" if field.name == "imu_bias" else "0 <= "
-                raise ValueError(
-                    f"DynamicsRanges.{field.name} must be (low, high) with {bound}low <= high, "
-                    f"got {(low, high)}"
-                )
-            object.__setattr__(self, field.name, (low, high))
+                raise ValueError(f"{name} must be (low, high), got {value!r}") from None
+            # Masses, inertias and the voltage must stay > 0: a zero mass makes a body static.
+            low_open = field.name in POSITIVE_RANGES
+            first = number(f"{name} low", first, low, high, low_open=low_open, unit=unit)
+            last = number(f"{name} high", last, low, high, low_open=low_open, unit=unit)
+            if first > last:
+                raise ValueError(f"{name} must be (low, high) with low <= high, got {value!r}")
+            object.__setattr__(self, field.name, (first, last))
         if self.control_step is not None and self.control_step[1] <= 0:
             raise ValueError("DynamicsRanges.control_step must allow a step > 0")
 
@@ -199,17 +218,23 @@ class Pushes:
     duration: float = 0.06
 
     def __post_init__(self) -> None:
-        low, high = self.force
-        if not (np.isfinite(low) and np.isfinite(high) and 0 <= low <= high):
+        try:
+            low, high = self.force
+        except (TypeError, ValueError):
+            raise ValueError(f"Pushes.force must be (low, high) in N, got {self.force!r}") from None
+        low = number("Pushes.force low", low, 0, MAX_PUSH_FORCE, unit="N")
+        high = number("Pushes.force high", high, 0, MAX_PUSH_FORCE, unit="N")
+        if low > high:
+            raise ValueError(f"Pushes.force must be (low, high) with low <= high, got {self.force}")
+        interval = number("Pushes.interval", self.interval, 0, 600, low_open=True, unit="s")
+        duration = number("Pushes.duration", self.duration, 0, 600, low_open=True, unit="s")
+        if duration > interval:
             raise ValueError(
-                f"Pushes.force must be (low, high) with 0 <= low <= high, got {self.force}"
+                f"Pushes needs 0 < duration <= interval, got duration {duration}, "
+                f"interval {interval}"
             )
-        if not (0 < self.duration <= self.interval < math.inf):
-            raise ValueError(
-                f"Pushes needs 0 < duration <= interval, got duration {self.duration}, "
-                f"interval {self.interval}"
-            )
-        object.__setattr__(self, "force", (float(low), float(high)))
+        for name, value in (("force", (low, high)), ("interval", interval), ("duration", duration)):
+            object.__setattr__(self, name, value)
 
     @classmethod
     def coerce(cls, value: Pushes | dict[str, Any] | bool | None) -> Pushes | None:

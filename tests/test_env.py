@@ -269,7 +269,7 @@ def test_rgb_array_frames_follow_the_robot_and_are_not_blank():
     moved = env.render()
     followed = np.abs(moved.astype(int) - frame.astype(int))[centre].mean()
     # Negative control: a camera left where it was sees the robot gone from the centre.
-    fixed = env.sim.render(start, 160, 120, env.camera_distance, 0.0, -30.0)
+    fixed = env.sim.render(start, 160, 120, env.camera.distance, 0.0, -30.0)
     left_behind = np.abs(fixed.astype(int) - frame.astype(int))[centre].mean()
     assert followed < 20 < left_behind
     env.close()
@@ -317,7 +317,9 @@ def test_render_without_mode_warns_and_returns_none(env):
         (np.zeros(7), "shape"),
         (np.zeros((2, 8)), "shape"),
         (np.array([0, 0, 0, 1.02, 0, 0, 0, 0]), r"action\[3\]"),
-        (["a"] * 8, "numeric"),
+        (["a"] * 8, "real numbers"),
+        ([True] * 8, "real numbers"),
+        (np.zeros(8) + 0.5j, "real numbers"),
     ],
 )
 def test_bad_actions_raise_value_error(env, action, message):

@@ -10,7 +10,7 @@ import pybullet
 import pytest
 
 import minitaur_env  # noqa: F401
-from minitaur_env import DynamicsRanges, MinitaurBulletEnv, Pushes
+from minitaur_env import DynamicsRanges, MinitaurBulletEnv, Pushes, Realism
 from minitaur_env.robot import MOTOR_DIRECTIONS, leg_model_to_motor_angles
 from minitaur_env.sensors import SensorHistory, euler_to_quaternion, quaternion_to_euler
 
@@ -250,8 +250,30 @@ def test_the_randomized_id_uses_tan2018_and_is_reproducible():
     ("kwargs", "message"),
     [
         ({"observation": "lidar"}, "observation must be one of"),
-        ({"control_latency": -0.01}, "control_latency must be finite and >= 0"),
-        ({"imu_bias": float("nan")}, "imu_bias must be finite"),
+        ({"control_latency": -0.01}, "control_latency must be in [0, 1] s, got -0.01"),
+        ({"imu_bias": float("nan")}, "imu_bias must be in [-1, 1] rad, got nan"),
+        # What the issue found accepted silently: each now names the value and the range.
+        ({"randomize_dynamics": "no"}, "randomize_dynamics must be True or False, got 'no'"),
+        ({"hard_reset": 0}, "hard_reset must be True or False, got 0"),
+        ({"control_latency": 1e9}, "control_latency must be in [0, 1] s, got 1000000000.0"),
+        ({"pushes": {"force": [1e12, 1e12]}}, "Pushes.force low must be in [0, 10000] N"),
+        (
+            {"dynamics_ranges": {"base_mass_scale": [0, 0]}},
+            "base_mass_scale low must be in (0, 10]",
+        ),
+        ({"dynamics_ranges": {"control_step": [3, 20]}}, "control_step low must be in [0, 0.1] s"),
+        ({"control_time_step": 10}, "control_time_step must be in (0, 0.1] s, got 10"),
+        ({"control_time_step": "fast"}, "control_time_step must be a number in (0, 0.1] s"),
+        ({"control_time_step": float("nan")}, "control_time_step must be in (0, 0.1] s, got nan"),
+        ({"energy_weight": "0.1"}, "energy_weight must be a number in [0, inf)"),
+        ({"distance_limit": float("nan")}, "distance_limit must be in (0, inf]"),
+        ({"width": True}, "width must be an int in [1, 4096], got True"),
+        ({"realism": {"latency": 0.02}}, "Realism has no field 'latency'"),
+        ({"realism": 0.02}, "realism must be a Realism or a mapping of its fields"),
+        (
+            {"realism": {"control_latency": 0.02}, "control_latency": 0.01},
+            "control_latency is given twice",
+        ),
         ({"dynamics_ranges": {"stiffness": (0, 1)}}, "DynamicsRanges has no field 'stiffness'"),
         ({"dynamics_ranges": "tan2019"}, "dynamics_ranges must be a DynamicsRanges"),
         ({"dynamics_ranges": {"motor_strength": 0.8}}, "motor_strength must be (low, high)"),
@@ -267,3 +289,25 @@ def test_bad_knobs_are_one_clear_error(kwargs, message):
 
 def test_pushes_default_to_tan2018():
     assert Pushes.coerce(True) == Pushes(force=(130.0, 220.0), interval=1.2, duration=0.06)
+
+
+def test_realism_and_its_flat_keywords_are_the_same_env():
+    flat = {"control_latency": 0.02, "pd_latency": 0.004, "imu_bias": 0.01, "pushes": True}
+    grouped, _ = observations(steps=40, realism=flat)
+    aliased, _ = observations(steps=40, **flat)
+    both, _ = observations(steps=40, realism=Realism(**flat), control_latency=0.02)
+    nominal, _ = observations(steps=40)
+    np.testing.assert_array_equal(grouped, aliased)
+    np.testing.assert_array_equal(grouped, both)  # the same value given twice is no conflict
+    assert not np.array_equal(grouped[1:], nominal[1:])  # the knobs are applied
+    env = MinitaurBulletEnv(realism=flat)
+    assert env.realism == Realism(**flat) and env.realism.imu_bias == (0.01, 0.01, 0.01)
+    assert env.realism.pushes == Pushes()
+    env.close()
+
+
+def test_the_randomized_id_keeps_its_latency_under_a_realism_mapping():
+    env = gym.make("MinitaurBulletRandomized-v0", realism={"control_latency": 0.02})
+    realism = env.unwrapped.realism
+    assert realism.pd_latency == 0.003 and realism.control_latency == 0.02
+    env.close()

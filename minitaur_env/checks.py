@@ -1,0 +1,72 @@
+"""Argument checks that name the argument, the value and what is accepted, in one line.
+
+Constructor arguments arrive from Python, from ``--env-kwargs`` and from the zoo's
+``env_kwargs.yml``, where a string, a bool or milliseconds slip in easily; each check
+refuses them rather than letting them reach the simulator as a plausible number.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+
+def _interval(low: float, high: float, low_open: bool, high_open: bool) -> str:
+    def shown(value: float) -> str:
+        return f"{value:g}"
+
+    return f"{'(' if low_open else '['}{shown(low)}, {shown(high)}{')' if high_open else ']'}"
+
+
+def number(
+    name: str,
+    value: Any,
+    low: float = -math.inf,
+    high: float = math.inf,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+    unit: str = "",
+) -> float:
+    """``value`` as a float, if it is a real number in the interval (NaN never is).
+
+    An infinite bound is accepted as a value only where its end is closed, so
+    ``number("x", v, 0, math.inf, high_open=True)`` asks for a finite ``v >= 0``.
+    """
+    accepted = _interval(low, high, low_open, high_open) + (f" {unit}" if unit else "")
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a number in {accepted}, got {value!r}")
+    result = float(value)
+    inside = (
+        not math.isnan(result)
+        and (low < result if low_open else low <= result)
+        and (result < high if high_open else result <= high)
+    )
+    if not inside:
+        raise ValueError(f"{name} must be in {accepted}, got {value!r}")
+    return result
+
+
+def integer(name: str, value: Any, low: int, high: int) -> int:
+    """``value`` if it is an int (not a bool) in ``[low, high]``."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, numbers.Integral)
+        or not (low <= value <= high)
+    ):
+        raise ValueError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+    return int(value)
+
+
+def boolean(name: str, value: Any) -> bool:
+    """``value`` if it is a bool: ``"no"`` or ``0`` would otherwise read as a choice."""
+    if not isinstance(value, bool) and type(value).__name__ != "bool_":  # numpy's bool too
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def choice(name: str, value: Any, options: tuple[str, ...]) -> str:
+    if value not in options:
+        raise ValueError(f"{name} must be one of {options}, got {value!r}")
+    return value
