@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from typing import Any, Literal, SupportsFloat
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -13,27 +13,25 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from minitaur_env.checks import boolean, choice, integer, number
-from minitaur_env.motor import OBSERVED_TORQUE_LIMIT, SPEED_LIMIT
 from minitaur_env.randomization import DynamicsRanges, Pushes, apply_dynamics, sample_dynamics
 from minitaur_env.robot import (
-    CLASSIC_OBSERVATION_BOUND,
     DEFAULT_GAINS,
     INIT_MOTOR_ANGLE,
     MOTOR_CONTROLS,
     NUM_MOTORS,
-    OBSERVATION_SIZE,
     Minitaur,
     MotorControl,
     leg_model_to_motor_angles,
 )
 from minitaur_env.sensors import (
     ANGLES,
-    BASE_RATES,
-    QUATERNION,
+    IMU_OBSERVATION_BOUND,
+    OBSERVATION_BOUND,
+    OBSERVATIONS,
     VELOCITIES,
+    Observation,
     SensorHistory,
-    euler_to_quaternion,
-    quaternion_to_euler,
+    observe,
 )
 from minitaur_env.settings import Camera, Realism, RewardWeights
 from minitaur_env.sim import DATA_PATH, BulletSim
@@ -46,31 +44,6 @@ SETTLE_STEPS = 100  # physics steps holding every motor at pi/2 before an episod
 ACTION_TOLERANCE = 0.01  # the classic env accepts actions up to 1.01 in magnitude
 FALL_UP_Z = 0.85  # the base's up axis must keep this world-z component
 FALL_HEIGHT = 0.13  # m, minimum base height
-
-# Declared observation bounds. The classic bounds (pi, the nominal no-load speed, the
-# torque sensor's limit, 1) plus 0.01 do not contain what the robot does: the motor
-# angles of the recorded classic trajectories reach 3.94 rad, and with a 16.8 V
-# battery or an impact the motor speed passes the nominal no-load speed. Angles get a
-# full turn each way and speeds twice the nominal no-load speed; torques and the
-# quaternion are clipped by construction.
-OBSERVATION_BOUND = np.concatenate(
-    [
-        np.full(NUM_MOTORS, 2 * math.pi),
-        np.full(NUM_MOTORS, 2 * SPEED_LIMIT),
-        np.full(NUM_MOTORS, OBSERVED_TORQUE_LIMIT + 0.01),
-        np.full(4, 1.01),
-    ]
-).astype(np.float32)
-
-# observation="imu": motor angles, then roll, pitch and their rates from the IMU, as the
-# real robot's SAC policy saw them (Haarnoja et al. 2018). The rates are clipped where a
-# MEMS gyroscope saturates (2000 deg/s).
-GYRO_LIMIT = math.radians(2000.0)  # rad/s
-IMU_OBSERVATION_BOUND = np.concatenate(
-    [np.full(NUM_MOTORS, 2 * math.pi), np.full(2, math.pi), np.full(2, GYRO_LIMIT)]
-).astype(np.float32)
-Observation = Literal["classic", "imu"]
-OBSERVATIONS: tuple[str, ...] = ("classic", "imu")
 
 
 class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -540,38 +513,14 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         return action
 
     def _observation(self, reading: np.ndarray) -> np.ndarray:
-        """The observation from a sensor reading: IMU errors, then the relative noise."""
-        imu_errors = self._episode_imu_noise > 0 or self._episode_imu_bias.any()
-        if self.observation == "imu":
-            angles = reading[ANGLES]
-            if self.observation_noise_stdev > 0:
-                angles = angles + self.np_random.normal(
-                    scale=self.observation_noise_stdev * math.pi, size=NUM_MOTORS
-                )
-            euler = quaternion_to_euler(reading[QUATERNION])
-            rates = reading[BASE_RATES]
-            if imu_errors:
-                euler, rates = self._imu_errors(euler, rates)
-            rates = np.clip(rates, -GYRO_LIMIT, GYRO_LIMIT)
-            return np.concatenate([angles, euler[:2], rates[:2]]).astype(np.float32)
-        state = reading[:OBSERVATION_SIZE]
-        if imu_errors:
-            euler, _ = self._imu_errors(quaternion_to_euler(state[QUATERNION]), np.zeros(3))
-            state = np.concatenate([state[: 3 * NUM_MOTORS], euler_to_quaternion(euler)])
-        if self.observation_noise_stdev > 0:
-            state = state + (
-                self.np_random.normal(scale=self.observation_noise_stdev, size=OBSERVATION_SIZE)
-                * CLASSIC_OBSERVATION_BOUND
-            )
-        return state.astype(np.float32)
-
-    def _imu_errors(self, euler: np.ndarray, rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Angles with the episode's bias and Gaussian noise (rad); rates with the noise."""
-        noise = self._episode_imu_noise
-        if noise > 0:
-            euler = euler + self.np_random.normal(scale=noise, size=3)
-            rates = rates + self.np_random.normal(scale=noise, size=3)
-        return euler + self._episode_imu_bias, rates
+        return observe(
+            reading,
+            self.observation,
+            self.np_random,
+            self.observation_noise_stdev,
+            self._episode_imu_noise,
+            self._episode_imu_bias,
+        )
 
     def _reward(self, position: np.ndarray, state: np.ndarray) -> tuple[float, dict[str, Any]]:
         displacement = position - self._last_base_position

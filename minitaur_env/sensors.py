@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import collections
 import math
+from typing import Literal
 
 import numpy as np
 
-from minitaur_env.robot import NUM_MOTORS
+from minitaur_env.motor import OBSERVED_TORQUE_LIMIT, SPEED_LIMIT
+from minitaur_env.robot import CLASSIC_OBSERVATION_BOUND, NUM_MOTORS, OBSERVATION_SIZE
 
 # A reading: [angles (8) | velocities (8) | observed torques (8) | quaternion xyzw (4) |
 # base angular velocity in the base frame (3)].
@@ -22,6 +24,31 @@ VELOCITIES = slice(NUM_MOTORS, 2 * NUM_MOTORS)
 QUATERNION = slice(3 * NUM_MOTORS, 3 * NUM_MOTORS + 4)
 BASE_RATES = slice(3 * NUM_MOTORS + 4, 3 * NUM_MOTORS + 7)
 READING_SIZE = 3 * NUM_MOTORS + 7
+
+# Declared observation bounds. The classic bounds (pi, the nominal no-load speed, the
+# torque sensor's limit, 1) plus 0.01 do not contain what the robot does: the motor
+# angles of the recorded classic trajectories reach 3.94 rad, and with a 16.8 V
+# battery or an impact the motor speed passes the nominal no-load speed. Angles get a
+# full turn each way and speeds twice the nominal no-load speed; torques and the
+# quaternion are clipped by construction.
+OBSERVATION_BOUND = np.concatenate(
+    [
+        np.full(NUM_MOTORS, 2 * math.pi),
+        np.full(NUM_MOTORS, 2 * SPEED_LIMIT),
+        np.full(NUM_MOTORS, OBSERVED_TORQUE_LIMIT + 0.01),
+        np.full(4, 1.01),
+    ]
+).astype(np.float32)
+
+# observation="imu": motor angles, then roll, pitch and their rates from the IMU, as the
+# real robot's SAC policy saw them (Haarnoja et al. 2018). The rates are clipped where a
+# MEMS gyroscope saturates (2000 deg/s).
+GYRO_LIMIT = math.radians(2000.0)  # rad/s
+IMU_OBSERVATION_BOUND = np.concatenate(
+    [np.full(NUM_MOTORS, 2 * math.pi), np.full(2, math.pi), np.full(2, GYRO_LIMIT)]
+).astype(np.float32)
+Observation = Literal["classic", "imu"]
+OBSERVATIONS: tuple[str, ...] = ("classic", "imu")
 
 
 class SensorHistory:
@@ -90,3 +117,45 @@ def world_to_base(quaternion: np.ndarray, vector: np.ndarray) -> np.ndarray:
         ]
     )
     return rotation.T @ vector
+
+
+def observe(
+    reading: np.ndarray,
+    observation: Observation,
+    rng: np.random.Generator,
+    noise_stdev: float,
+    imu_noise_stdev: float,
+    imu_bias: np.ndarray,
+) -> np.ndarray:
+    """The observation of a sensor reading: IMU errors, then the relative noise.
+
+    ``noise_stdev`` is relative to the classic bounds (to pi for the "imu" observation's
+    motor angles); the draws come from ``rng`` in a fixed order, so a seed fixes them.
+    """
+
+    def imu_errors(euler: np.ndarray, rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if imu_noise_stdev > 0:
+            euler = euler + rng.normal(scale=imu_noise_stdev, size=3)
+            rates = rates + rng.normal(scale=imu_noise_stdev, size=3)
+        return euler + imu_bias, rates
+
+    with_imu_errors = imu_noise_stdev > 0 or imu_bias.any()
+    if observation == "imu":
+        angles = reading[ANGLES]
+        if noise_stdev > 0:
+            angles = angles + rng.normal(scale=noise_stdev * math.pi, size=NUM_MOTORS)
+        euler = quaternion_to_euler(reading[QUATERNION])
+        rates = reading[BASE_RATES]
+        if with_imu_errors:
+            euler, rates = imu_errors(euler, rates)
+        rates = np.clip(rates, -GYRO_LIMIT, GYRO_LIMIT)
+        return np.concatenate([angles, euler[:2], rates[:2]]).astype(np.float32)
+    state = reading[:OBSERVATION_SIZE]
+    if with_imu_errors:
+        euler, _ = imu_errors(quaternion_to_euler(state[QUATERNION]), np.zeros(3))
+        state = np.concatenate([state[: 3 * NUM_MOTORS], euler_to_quaternion(euler)])
+    if noise_stdev > 0:
+        state = state + (
+            rng.normal(scale=noise_stdev, size=OBSERVATION_SIZE) * CLASSIC_OBSERVATION_BOUND
+        )
+    return state.astype(np.float32)
