@@ -195,8 +195,8 @@ def test_the_ctrl_c_checkpoint_is_checked_too(tmp_path, poison):
 
 def test_divergence_is_told_by_type_not_by_words_in_the_message(tmp_path):
     # The old check matched r"\b(nan|inf)" in any ValueError: "information" read as divergence.
-    with pytest.raises(ValueError, match="bad information"):
-        pendulum(tmp_path, env="RaisesValueError-v0").run()
+    failed = pendulum(tmp_path, env="RaisesValueError-v0").run()
+    assert failed.status == "failed" and "ValueError: bad information" in failed.message
     result = pendulum(tmp_path, env="NanObs-v0").run()
     assert result.status == "diverged" and "found nan in observations" in result.message
 
@@ -438,3 +438,55 @@ def test_hyperparameters_in_range_pass():  # the control: the edges are allowed
         "sac", "Pendulum-v1", hyperparams={"gamma": 1, "tau": 1, "batch_size": 1, "buffer_size": 1}
     )
     assert config.hyperparams["gamma"] == 1
+
+
+class RaisesAt(BaseCallback):
+    """A callback that raises ``error`` at env step ``at``: a video, TensorBoard or disk
+    failure in the middle of training."""
+
+    def __init__(self, error: Exception, at: int) -> None:
+        super().__init__()
+        self.error, self.at = error, at
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps == self.at:
+            raise self.error
+        return True
+
+
+@pytest.mark.parametrize(
+    ("error", "exit_code"),
+    [
+        (OSError(28, "No space left on device"), 1),
+        (PermissionError(13, "Permission denied: 'videos'"), 1),
+        (ValueError("Expected parameter loc of shape (16, 1)"), 2),  # a setting SB3 rejected
+    ],
+)
+def test_an_error_after_training_starts_keeps_the_run_and_says_how_to_resume(
+    tmp_path, error, exit_code
+):
+    result = pendulum(tmp_path, callbacks=[RaisesAt(error, 77)], save_freq=50).run()
+    run = result.run
+    assert result.status == "failed" and result.exit_code == exit_code
+    assert "\n" not in result.message and f"--resume {run.path}" in result.message
+    assert type(error).__name__ in result.message and str(error.args[-1]) in result.message
+    # The weights of step 77 are kept whole, with the buffer SAC needs to go on exactly.
+    assert result.checkpoint == run.checkpoint(77) and run.replay_buffer(77).is_file()
+    assert "Traceback" in run.failure_log.read_text()
+    resumed = Experiment.resume(run.path, verbose=0).run()
+    assert resumed.status == "completed" and resumed.num_timesteps == 200
+
+
+def test_a_failure_whose_checkpoint_cannot_be_written_names_the_last_good_one(
+    tmp_path, monkeypatch
+):
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    experiment = pendulum(tmp_path, callbacks=[RaisesAt(OSError(28, "disk full"), 77)])
+    monkeypatch.setattr(experiment_module, "save_checked_checkpoint", disk_full)
+    result = experiment.run()
+    assert result.status == "failed" and result.exit_code == 1 and result.checkpoint is None
+    assert "no new checkpoint (OSError" in result.message
+    assert f"last one {result.run.checkpoint(50)}" in result.message  # from before the failure
+    assert not result.run.checkpoint(77).exists()

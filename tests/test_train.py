@@ -490,3 +490,16 @@ def test_runs_started_together_get_their_own_folders(tmp_path):
             folders = list(pool.map(start, range(8)))
         assert len(set(folders)) == 8 and all(folder.is_dir() for folder in folders)
     assert len(list((tmp_path / "logs" / "tqc").iterdir())) == 40  # no probe left behind
+
+
+def test_an_unwritable_tensorboard_folder_is_refused_before_training(tmp_path):
+    (tmp_path / "a-file").write_text("")
+    result = run_script(
+        "train.py", "--env", "Pendulum-v1", "-n", "100", "--tensorboard-log",
+        str(tmp_path / "a-file" / "tb"), "-f", str(tmp_path / "logs"), "-v", "0", cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 2
+    assert error_lines(result) == [
+        f"train.py: error: cannot write to {tmp_path / 'a-file' / 'tb'}: Not a directory"
+    ]
+    assert not list((tmp_path / "logs").glob("*/*"))  # no half-made run folder

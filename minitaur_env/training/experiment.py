@@ -19,6 +19,7 @@ from __future__ import annotations
 import shutil
 import sys
 import time
+import traceback
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -39,7 +40,7 @@ from minitaur_env.training.checkpoints import (
 )
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_eval_env, make_training_env
-from minitaur_env.training.files import ensure_writable, exclusive
+from minitaur_env.training.files import ensure_writable, exclusive, write_text
 from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.policies import resolve_policy
 from minitaur_env.training.results import RunResult
@@ -53,7 +54,10 @@ from minitaur_env.training.runtime import (
 from minitaur_env.training.safe_load import (
     save_normalizer,
 )
-from minitaur_env.training.vec_env import EnvWorkerError
+
+# Raised late by SB3 or torch for a setting they reject (the checks before training catch
+# most): status 2, as a usage error before training would be.
+USAGE_ERRORS = (UsageError, ValueError, TypeError, AssertionError)
 
 
 class Experiment:
@@ -107,6 +111,7 @@ class Experiment:
                 raise UsageError(
                     "--tensorboard-log needs TensorBoard: pip install tensorboard"
                 ) from error
+            ensure_writable(Path(config.tensorboard_log))  # not after the first step
         run = RunFolder.create(log_folder, config.algo, config.env)
         run.write_config(config.to_dict())
         return cls(config, run, **options)
@@ -149,6 +154,8 @@ class Experiment:
         if device is not None:
             config.device = device
         ensure_writable(run.path)
+        if config.tensorboard_log:
+            ensure_writable(Path(config.tensorboard_log))
         run.write_config(config.to_dict())
         return cls(config, run, resume=True, **options)
 
@@ -293,6 +300,41 @@ class Experiment:
                 env.close()
 
     # -- running ------------------------------------------------------------------
+    def _save_final(self, model: BaseAlgorithm) -> None:
+        run = self.run_folder
+        newest = run.checkpoints()
+        if self.config.save_freq and (not newest or newest[0][0] != model.num_timesteps):
+            # With its replay buffer, so that --resume -n can extend the run exactly.
+            save_checked_checkpoint(model, run)
+        save_model(model, run.zoo_model)
+        normalizer = model.get_vec_normalize_env()
+        if normalizer is not None:
+            save_normalizer(normalizer, run.zoo_vecnormalize)
+
+    def _save_after_failure(
+        self, model: BaseAlgorithm, error: Exception
+    ) -> tuple[Path | None, str]:
+        """A checked checkpoint if one can still be written, the traceback in the run
+        folder, and the one line that says what happened and how to go on."""
+        run = self.run_folder
+        what = f"{type(error).__name__}: {' '.join(str(error).split())}"[:400]
+        with ignoring_more_signals():
+            try:
+                checkpoint: Path | None = save_checked_checkpoint(model, run)
+                kept = f"saved {checkpoint}"
+            except (OSError, TrainingDiverged) as save_error:  # a full disk fails again
+                checkpoint = None
+                last = run.checkpoints()
+                kept = f"no new checkpoint ({type(save_error).__name__}: {save_error})" + (
+                    f", last one {last[0][1]}" if last else ""
+                )
+            try:
+                write_text(run.failure_log, "".join(traceback.format_exception(error)))
+                details = f"; details in {run.failure_log}"
+            except OSError:
+                details = ""
+        return checkpoint, f"{what}; {kept} (resume with --resume {run.path}){details}"
+
     def run(self) -> RunResult:
         """Train to ``config.n_timesteps``; Ctrl-C and SIGTERM end in a checked checkpoint."""
         config = self.config
@@ -326,6 +368,7 @@ class Experiment:
             )
             started = time.perf_counter()
             status, checkpoint, stop_signal, message = "completed", None, None, ""
+            usage_error = False
             try:
                 try:
                     if remaining > 0:
@@ -344,32 +387,26 @@ class Experiment:
                     with ignoring_more_signals():
                         checkpoint = save_checked_checkpoint(model, run)
                     message = f"interrupted: saved {checkpoint} (resume with --resume {run.path})"
-            except EnvWorkerError as error:
-                # The model is sound: keep it, so that the run can resume once the env is fixed.
-                status = "failed"
-                with ignoring_more_signals():
-                    checkpoint = save_checked_checkpoint(model, run)
-                message = f"{error}; saved {checkpoint} (resume with --resume {run.path})"
+                if status == "completed":
+                    self._save_final(model)
             except TrainingDiverged as error:
                 status = "diverged"
                 last = run.checkpoints()
                 kept = f"last good checkpoint: {last[0][1]}" if last else "no checkpoint was saved"
                 message = f"training diverged: {str(error)[:300]}; {kept}"
+            except Exception as error:
+                # An env, a disk, a callback (video, TensorBoard) or a setting SB3 rejects
+                # late: the model is sound, so keep it and say how to go on once it is fixed.
+                status = "failed"
+                usage_error = isinstance(error, USAGE_ERRORS) and not isinstance(error, OSError)
+                checkpoint, message = self._save_after_failure(model, error)
             finally:
                 self.close()
             elapsed = time.perf_counter() - started
-            if status == "completed":
-                newest = run.checkpoints()
-                if self.config.save_freq and (not newest or newest[0][0] != model.num_timesteps):
-                    # With its replay buffer, so that --resume -n can extend the run exactly.
-                    save_checked_checkpoint(model, run)
-                save_model(model, run.zoo_model)
-                normalizer = model.get_vec_normalize_env()
-                if normalizer is not None:
-                    save_normalizer(normalizer, run.zoo_vecnormalize)
             result = RunResult(
                 status, run, model.num_timesteps, model.num_timesteps - start_steps, elapsed,
                 checkpoint=checkpoint, signal=stop_signal, message=message,
+                usage_error=usage_error,
             )  # fmt: skip
             result.read_evaluations(self.config.env)
             return result

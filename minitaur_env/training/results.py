@@ -26,15 +26,17 @@ class RunResult:
     message: str = ""
     last_eval: tuple[int, float, float] | None = None  # (steps, mean, std)
     best_eval: tuple[int, float] | None = None  # (steps, mean)
+    usage_error: bool = False  # failed on a setting, not on the env or the disk
 
     @property
     def exit_code(self) -> int:
-        """What a script should exit with: 0, 1 (diverged, failed), 130 (Ctrl-C), 143 (SIGTERM)."""
+        """What a script should exit with: 0; 2 (failed on a setting); 1 (diverged, or failed
+        on the env or the disk); 130 (Ctrl-C), 143 (SIGTERM)."""
         if self.status == "completed":
             return 0
         if self.status == "interrupted":
             return 128 + (self.signal or signal.SIGINT)
-        return 1
+        return 2 if self.usage_error else 1
 
     def summary(self) -> str:
         lines = [f"run folder: {self.run}"]

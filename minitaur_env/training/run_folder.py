@@ -213,6 +213,11 @@ class RunFolder:
         return self.path / ".lock"
 
     @property
+    def failure_log(self) -> Path:
+        """The traceback of the exception that stopped the run last (its one line is printed)."""
+        return self.path / "failure.txt"
+
+    @property
     def staging_dir(self) -> Path:
         """Where files SB3 writes in place are written before they replace the run's."""
         return self.path / ".staging"
