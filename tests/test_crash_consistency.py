@@ -3,9 +3,14 @@ statistics: every file is replaced atomically, the statistics travel inside the 
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+import random
 import shutil
+import signal
 import zipfile
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -143,3 +148,68 @@ def test_two_processes_never_train_one_run_and_a_killed_one_leaves_no_lock(tmp_p
                             timeout=120)  # fmt: skip
     assert killed.returncode == 9
     assert Experiment.resume(run.path, n_timesteps=300).run().status == "completed"
+
+
+SOAK_STEPS = 3000
+if "ShortPendulum-v0" not in gym.registry:  # at import: the soak's children need it too
+    gym.register("ShortPendulum-v0", max_episode_steps=25,
+                 entry_point="gymnasium.envs.classic_control:PendulumEnv")  # fmt: skip
+
+
+def _resume_in_child(run_path: str) -> None:
+    """One session of the soak: resume the run towards SOAK_STEPS until killed."""
+    import torch
+
+    torch.set_num_threads(1)
+    result = Experiment.resume(run_path, n_timesteps=SOAK_STEPS, verbose=0, progress="none").run()
+    os._exit(0 if result.status == "completed" else 3)
+
+
+def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path):
+    """Fault injection: SIGKILL at random moments (mid-step, mid-checkpoint, mid-eval),
+    then resume, 20 times. Children fork from a forkserver that imported the package
+    once, so a cycle costs a fraction of a second rather than an interpreter start."""
+    config = ExperimentConfig.resolve(
+        "sac", "ShortPendulum-v0", hyperparams=NORMALIZED_SAC, n_timesteps=60,
+        eval_freq=100, eval_episodes=1, save_freq=40, vec_env="dummy", device="cpu",
+    )  # fmt: skip
+    run = Experiment.create(config, tmp_path / "logs", verbose=0).run().run
+    context = multiprocessing.get_context("forkserver")
+    # What a run imports lazily (plots, videos, torch's compiler via Adam), imported once.
+    context.set_forkserver_preload(
+        [__name__, "minitaur_env.training.plotting", "minitaur_env.training.video", "torch._dynamo"]
+    )
+    rng = random.Random(0)
+    outcomes, progress = [], []
+    while outcomes.count(-signal.SIGKILL) < 20:
+        child = context.Process(target=_resume_in_child, args=(str(run.path),))
+        child.start()
+        child.join(timeout=rng.uniform(0.5, 2.0))
+        if child.is_alive():
+            child.kill()
+        child.join(timeout=60)
+        outcomes.append(child.exitcode)
+        # A resume either was killed or finished; none failed to start (status 3 or a raise).
+        assert child.exitcode in (-signal.SIGKILL, 0), outcomes
+        progress.append(max((steps for steps, _ in run.checkpoints()), default=0))
+        if child.exitcode == 0:
+            break
+    # The kills landed while training, not only while starting: checkpoints moved on.
+    assert len(set(progress)) >= 10, progress
+    final = Experiment.resume(run.path, n_timesteps=SOAK_STEPS, verbose=0).run()
+    assert final.status == "completed" and final.num_timesteps == SOAK_STEPS
+    with np.load(run.evaluations) as data:
+        steps = data["timesteps"].tolist()
+    assert steps == list(range(100, SOAK_STEPS + 1, 100))  # each evaluation once, none lost
+    episodes = [
+        int(line.split(",")[1])
+        for monitor in run.monitor_dir.glob("*.monitor.csv")
+        for line in monitor.read_text().splitlines()[2:]
+    ]
+    # No episode of a killed branch is kept (they would add up to more than the run's
+    # steps); a session loses at most the unfinished episode it resumed in.
+    sessions = len(outcomes) + 1
+    assert set(episodes) == {25}
+    assert SOAK_STEPS - 25 * sessions <= sum(episodes) <= SOAK_STEPS
+    assert load_policy(run.best_model, device="cpu").normalizer is not None
+    assert load_policy(run.zoo_model, device="cpu").normalizer is not None
