@@ -58,6 +58,7 @@ TABLES = {
         "lin_7.3e-4 + LayerNorm critics": "sac-ablation/lin7e-4-ln/seed*",
         "gSDE (log_std_init -3), actor EMA 0.999": "sac-ablation/gsde-ema/seed*",
         "gSDE (log_std_init -3), live actor": "sac-ablation/gsde-ema/seed*" + LIVE,
+        "target_entropy 0 (SB3: -8)": "sac-ablation/target-entropy-0/seed*",
     },
 }
 REPORT = "final_model_report.json"
