@@ -484,7 +484,9 @@ def test_a_failure_whose_checkpoint_cannot_be_written_names_the_last_good_one(
         raise OSError(28, "No space left on device")
 
     experiment = pendulum(tmp_path, callbacks=[RaisesAt(OSError(28, "disk full"), 77)])
-    monkeypatch.setattr(experiment_module, "save_checked_checkpoint", disk_full)
+    from minitaur_env.training import checkpoints
+
+    monkeypatch.setattr(checkpoints, "save_checked_checkpoint", disk_full)
     result = experiment.run()
     assert result.status == "failed" and result.exit_code == 1 and result.checkpoint is None
     assert "no new checkpoint (OSError" in result.message

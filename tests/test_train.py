@@ -334,7 +334,8 @@ def test_an_env_failing_in_a_worker_ends_the_run_with_one_line_and_a_checkpoint(
     assert error_lines(stderr) == [
         "train.py: error: env 2 raised RuntimeError: motor driver fault; "
         "saved logs/ppo/BrokenInWorkers-v0_1/checkpoints/rl_model_174_steps.zip "
-        "(resume with --resume logs/ppo/BrokenInWorkers-v0_1)"
+        "(resume with --resume logs/ppo/BrokenInWorkers-v0_1); "
+        "details in logs/ppo/BrokenInWorkers-v0_1/failure.txt"
     ]
 
 
@@ -412,7 +413,7 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
         (["--hyperparams", "not_a_param=1"], "invalid hyperparameters for sac"),
         (["--hyperparams", "novalue"], "expects key=value"),
         (["--resume", "{tmp}/missing-run"], "no config.yml"),
-        (["--env-kwargs", "energy_weight=-1"], "energy_weight must be finite and >= 0"),
+        (["--env-kwargs", "energy_weight=-1"], "energy_weight must be in [0, inf), got -1"),
         (["--vec-env", "subproc"], "invalid choice: 'subproc'"),
         (["--vec-env", "threads"], "invalid choice: 'threads'"),
         (["-i", "{tmp}/missing.zip"], "--trained-agent: no model file at"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pickle
 import sys
+import traceback
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -19,9 +20,10 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize, unwrap_vec_no
 from minitaur_env.training import TrainingDiverged, UsageError
 from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, load_model
 from minitaur_env.training.config import ExperimentConfig
-from minitaur_env.training.files import atomic_path, load_pickle
+from minitaur_env.training.files import atomic_path, load_pickle, write_text
 from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.runtime import ignoring_more_signals
 from minitaur_env.training.safe_load import (
     TRUST_FLAG,
     adapting_normalizer,
@@ -32,6 +34,7 @@ from minitaur_env.training.safe_load import (
     save_normalizer,
     training_normalizer,
 )
+from minitaur_env.training.vec_env import EnvWorkerError
 
 # What a kill -9 during a save leaves behind: a torn zip or pickle.
 UNREADABLE = (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, pickle.PickleError)
@@ -180,3 +183,29 @@ def _weights_finite(policy: Any) -> list[tuple[str, bool]]:
             name = f"{attribute}{jax.tree_util.keystr(path)}"
             found.append((name, bool(np.isfinite(np.asarray(leaf)).all())))
     return found
+
+
+def save_after_failure(
+    model: BaseAlgorithm, run: RunFolder, error: Exception
+) -> tuple[Path | None, str]:
+    """After ``error`` stopped training: a checked checkpoint if one can still be written,
+    the traceback in the run folder, and the one line that says what happened and how to
+    go on."""
+    said = " ".join(str(error).split())
+    what = (said if isinstance(error, EnvWorkerError) else f"{type(error).__name__}: {said}")[:400]
+    with ignoring_more_signals():
+        try:
+            checkpoint: Path | None = save_checked_checkpoint(model, run)
+            kept = f"saved {checkpoint}"
+        except (OSError, TrainingDiverged) as save_error:  # a full disk fails again
+            checkpoint = None
+            last = run.checkpoints()
+            kept = f"no new checkpoint ({type(save_error).__name__}: {save_error})" + (
+                f", last one {last[0][1]}" if last else ""
+            )
+        try:
+            write_text(run.failure_log, "".join(traceback.format_exception(error)))
+            details = f"; details in {run.failure_log}"
+        except OSError:
+            details = ""
+    return checkpoint, f"{what}; {kept} (resume with --resume {run.path}){details}"

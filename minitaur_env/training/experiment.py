@@ -19,7 +19,6 @@ from __future__ import annotations
 import shutil
 import sys
 import time
-import traceback
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,6 +32,7 @@ from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class
 from minitaur_env.training.checkpoints import (
     load_newest_checkpoint,
     load_trained_agent,
+    save_after_failure,
     save_checked_checkpoint,
     save_model,
     trained_agent_normalizer,
@@ -40,7 +40,7 @@ from minitaur_env.training.checkpoints import (
 )
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_eval_env, make_training_env
-from minitaur_env.training.files import ensure_writable, exclusive, write_text
+from minitaur_env.training.files import ensure_writable, exclusive
 from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.policies import resolve_policy
 from minitaur_env.training.results import RunResult
@@ -311,30 +311,6 @@ class Experiment:
         if normalizer is not None:
             save_normalizer(normalizer, run.zoo_vecnormalize)
 
-    def _save_after_failure(
-        self, model: BaseAlgorithm, error: Exception
-    ) -> tuple[Path | None, str]:
-        """A checked checkpoint if one can still be written, the traceback in the run
-        folder, and the one line that says what happened and how to go on."""
-        run = self.run_folder
-        what = f"{type(error).__name__}: {' '.join(str(error).split())}"[:400]
-        with ignoring_more_signals():
-            try:
-                checkpoint: Path | None = save_checked_checkpoint(model, run)
-                kept = f"saved {checkpoint}"
-            except (OSError, TrainingDiverged) as save_error:  # a full disk fails again
-                checkpoint = None
-                last = run.checkpoints()
-                kept = f"no new checkpoint ({type(save_error).__name__}: {save_error})" + (
-                    f", last one {last[0][1]}" if last else ""
-                )
-            try:
-                write_text(run.failure_log, "".join(traceback.format_exception(error)))
-                details = f"; details in {run.failure_log}"
-            except OSError:
-                details = ""
-        return checkpoint, f"{what}; {kept} (resume with --resume {run.path}){details}"
-
     def run(self) -> RunResult:
         """Train to ``config.n_timesteps``; Ctrl-C and SIGTERM end in a checked checkpoint."""
         config = self.config
@@ -399,7 +375,7 @@ class Experiment:
                 # late: the model is sound, so keep it and say how to go on once it is fixed.
                 status = "failed"
                 usage_error = isinstance(error, USAGE_ERRORS) and not isinstance(error, OSError)
-                checkpoint, message = self._save_after_failure(model, error)
+                checkpoint, message = save_after_failure(model, run, error)
             finally:
                 self.close()
             elapsed = time.perf_counter() - started
