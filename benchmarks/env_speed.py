@@ -9,13 +9,14 @@ Baselines, measured in this same run:
   env that SB3's ``make_vec_env`` builds), and two bare physics loops in two processes
   (how far two cores scale at all).
 
-    python benchmarks/env_speed.py [--steps 3000] [--video]
+    python benchmarks/env_speed.py [--steps 3000] [--only step reset render vectorized] [--video]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import io
 import os
 import sys
@@ -61,6 +62,7 @@ def time_our_steps(steps: int) -> tuple[float, float]:
     return steps / total, steps / physics
 
 
+@functools.cache  # a second import would find the bare stub module below and fail
 def load_classic_env_class():
     """The classic env class from the pybullet wheel, or None with the reason."""
     import importlib.util
@@ -191,29 +193,26 @@ def time_video_episode() -> float:
     return time.perf_counter() - start
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=3000, help="env steps per measurement")
-    parser.add_argument("--video", action="store_true", help="also time a 1000-step video")
-    args = parser.parse_args()
-    print(f"env speed, {args.steps} random-action steps per figure, pid {os.getpid()}")
+SECTIONS = ("step", "reset", "render", "vectorized")
 
-    ours, physics = max(
-        (time_our_steps(args.steps) for _ in range(STEP_ATTEMPTS)), key=lambda r: r[0]
-    )
+
+def step_figures(steps: int) -> None:
+    ours, physics = max((time_our_steps(steps) for _ in range(STEP_ATTEMPTS)), key=lambda r: r[0])
     print(
         f"step: ours {ours:.0f} steps/s; physics-only bound {physics:.0f} steps/s; "
         f"ratio {ours / physics:.2f} of the bound"
     )
     classic, reason = load_classic_env_class()
     if classic is not None:
-        classic_rate = max(time_classic_steps(classic, args.steps) for _ in range(STEP_ATTEMPTS))
+        classic_rate = max(time_classic_steps(classic, steps) for _ in range(STEP_ATTEMPTS))
         print(
             f"step: classic env {classic_rate:.0f} steps/s; ours/classic {ours / classic_rate:.2f}x"
         )
     else:
         print(f"step: classic env not measured ({reason})")
 
+
+def reset_figures() -> None:
     hard = time_resets(lambda: MinitaurBulletEnv(), 20)
     fixed = time_resets(lambda: MinitaurBulletEnv(randomize_dynamics=False), 20)
     restored = time_resets(
@@ -223,6 +222,7 @@ def main() -> None:
         f"reset: ours hard {hard:.1f} ms (randomized), {fixed:.1f} ms (fixed dynamics); "
         f"hard_reset=False {restored:.2f} ms (fixed dynamics)"
     )
+    classic, _ = load_classic_env_class()
     if classic is not None:
         with contextlib.redirect_stdout(io.StringIO()):
             classic_reset = time_resets(lambda: classic(env_randomizer=None), 20)
@@ -231,14 +231,18 @@ def main() -> None:
             f"{classic_reset / fixed:.2f}x, hard_reset=False {classic_reset / restored:.0f}x"
         )
 
+
+def render_figures() -> None:
     for width, height in ((640, 480), (960, 720), (320, 240)):
         print(f"render: {width}x{height} {time_render(width, height):.0f} ms/frame")
 
+
+def vectorized_figures(steps: int) -> None:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     from minitaur_env.training.vec_env import GroupedSubprocVecEnv
 
-    half = args.steps // 2
+    half = steps // 2
     one = max(time_vectorized(1, half, None) for _ in range(2))
     physics_one = time_bare_physics_processes(1, half)
     physics_two = time_bare_physics_processes(2, half)
@@ -255,6 +259,26 @@ def main() -> None:
     ):
         rate = time_vectorized(n_envs, half if n_envs <= 2 else half // 4, cls)
         print(f"vectorized: {name}: {rate:.0f} steps/s; {rate / one:.2f}x one env in-process")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=3000, help="env steps per measurement")
+    parser.add_argument(
+        "--only", nargs="+", choices=SECTIONS, default=SECTIONS, metavar="PART",
+        help=f"measure only these parts: {' '.join(SECTIONS)} (default: all)",
+    )  # fmt: skip
+    parser.add_argument("--video", action="store_true", help="also time a 1000-step video")
+    args = parser.parse_args()
+    print(f"env speed, {args.steps} random-action steps per figure, pid {os.getpid()}")
+    if "step" in args.only:
+        step_figures(args.steps)
+    if "reset" in args.only:
+        reset_figures()
+    if "render" in args.only:
+        render_figures()
+    if "vectorized" in args.only:
+        vectorized_figures(args.steps)
     if args.video:
         print(f"video: one 1000-step episode at 640x480, 50 fps: {time_video_episode():.1f} s")
 

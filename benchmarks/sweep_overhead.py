@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-SETTINGS = ["--eval-freq", "1000", "--eval-episodes", "2", "--hyperparams", "learning_starts=100"]
+SETTINGS = ["--eval-episodes", "2", "--hyperparams", "learning_starts=100"]
 
 
 def timed(command: list[str], cwd: Path, first_run_glob: str | None = None) -> tuple[float, float]:
@@ -42,7 +42,16 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=2)
     parser.add_argument("--env", default="Pendulum-v1")
     args = parser.parse_args()
-    common = ["--env", args.env, "-n", str(args.n), *SETTINGS]
+    # A sweep needs at least one evaluation per trial: every 1000 steps, or at the end.
+    common = [
+        "--env",
+        args.env,
+        "-n",
+        str(args.n),
+        "--eval-freq",
+        str(min(1000, args.n)),
+        *SETTINGS,
+    ]
     with tempfile.TemporaryDirectory() as folder:
         work = Path(folder)
         sweep, startup = timed(

@@ -19,18 +19,19 @@ import subprocess
 import sys
 import time
 
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 MEASURE = """
 import sys, time, torch, gymnasium as gym
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 import minitaur_env
-threads, steps, warmup = int(sys.argv[1]), int(sys.argv[2]), 300
+threads, steps, warmup = (int(value) for value in sys.argv[1:4])
 if threads:
     torch.set_num_threads(threads)
 class Timer(BaseCallback):
     started = 0.0
     def _on_step(self):
-        if self.num_timesteps == warmup + 200:
+        if self.num_timesteps == warmup + 200:  # the first updates are slower: not timed
             Timer.started = time.perf_counter()
         return True
 model = SAC("MlpPolicy", gym.make("MinitaurBulletEnv-v0"), learning_starts=warmup,
@@ -45,9 +46,12 @@ def burn() -> None:
         pass
 
 
-def measure(threads: int, steps: int) -> tuple[float, int]:
-    done = subprocess.run([sys.executable, "-c", MEASURE, str(threads), str(steps)],
-                          capture_output=True, text=True, check=True)  # fmt: skip
+def measure(threads: int, steps: int, warmup: int) -> tuple[float, int]:
+    # torch's default is what a user gets with nothing set: a caller's OMP_NUM_THREADS=1
+    # (as our own runs set it) would silently make both variants one thread.
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
+    command = [sys.executable, "-c", MEASURE, str(threads), str(steps), str(warmup)]
+    done = subprocess.run(command, capture_output=True, text=True, check=True, env=env)
     rate, used = done.stdout.split()[-2:]
     return float(rate), int(used)
 
@@ -56,12 +60,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=1500, help="timed learning-phase steps")
     parser.add_argument("--rounds", type=int, default=2, help="interleaved repetitions")
+    parser.add_argument("--warmup", type=int, default=300, help="random steps before learning")
     args = parser.parse_args()
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     rates: dict[tuple[str, str], list[float]] = {}
     threads_used: dict[str, int] = {}
     for _ in range(args.rounds):
         for load in ("idle", "busy"):
+            if load == "idle":
+                # "idle" is only true if nothing else runs: the load average says whether it did.
+                print(f"load average before the idle measurements: {os.getloadavg()[0]:.2f}")
             burners = []
             if load == "busy":
                 burners = [mp.Process(target=burn, daemon=True) for _ in range(max(cores - 1, 1))]
@@ -71,7 +79,7 @@ def main() -> None:
             try:
                 for name, threads in (("1 thread (train.py's default)", 1),
                                       ("torch's default threads", 0)):  # fmt: skip
-                    rate, used = measure(threads, args.steps)
+                    rate, used = measure(threads, args.steps, args.warmup)
                     rates.setdefault((name, load), []).append(rate)
                     threads_used[name] = used
             finally:

@@ -4,20 +4,24 @@ Every variant trains SAC with the same algorithmic settings as SB3's defaults (b
 (256, 256) actor and critics, one gradient step per env step) and differs only in how
 the work is executed: torch threads, updates batched in time, SBX (the JAX
 implementation of SAC by SB3's maintainers, ``pip install sbx-rl``). Each is measured in
-this one process, one after the other, over the learning phase (from 200 updates after
-``learning_starts``, so JAX's compilation is not counted). Also prints the memory of a 1M
-transition replay buffer.
+this one process, one after the other, over the learning phase (from ``--untimed`` (200)
+updates after ``learning_starts``, so JAX's compilation is not counted). Also prints the
+memory of a 1M transition replay buffer.
 
 Then PPO with the tuned Minitaur config (8 envs), its envs in one process (SB3's
 DummyVecEnv, torch's default threads) against ``GroupedSubprocVecEnv`` with one torch
 thread (what ``train.py`` does by default for several envs).
 
-    python benchmarks/training_speed.py [--steps 2000] [--warmup 300] [--ppo-steps 16384]
+    python benchmarks/training_speed.py [--steps 2000] [--warmup 300] [--untimed 200]
+                                        [--ppo-steps 16384]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
 import time
 
 import gymnasium as gym
@@ -48,9 +52,11 @@ def measure(
     warmup: int,
     threads: int,
     backend: str = "sb3",
+    untimed: int = 200,
     **sac_kwargs,
 ) -> float:
-    """Env steps/s of the learning phase, timed from 200 updates in (after JIT warm-up)."""
+    """Env steps/s of the learning phase, timed from ``untimed`` updates in (after JIT
+    warm-up)."""
     torch.set_num_threads(threads)
     env = gym.make("MinitaurBulletEnv-v0")
     if backend == "sbx":
@@ -60,8 +66,8 @@ def measure(
     else:
         algorithm = SAC
     model = algorithm("MlpPolicy", env, learning_starts=warmup, seed=0, device="cpu", **sac_kwargs)
-    timer = _LearningPhaseTimer(warmup + 200)
-    model.learn(total_timesteps=warmup + steps, callback=timer)
+    timer = _LearningPhaseTimer(warmup + untimed)
+    model.learn(total_timesteps=warmup + untimed + steps, callback=timer)
     elapsed = time.perf_counter() - timer.started
     env.close()
     return (model.num_timesteps - timer.steps_at_start) / elapsed
@@ -90,6 +96,14 @@ def measure_ppo(steps: int, vec_env: str, default_threads: int) -> float:
     return (model.num_timesteps - rollout) / elapsed
 
 
+def torch_default_threads() -> int:
+    """Torch's thread count in a process with no *_NUM_THREADS set: the defaults' baseline
+    must not inherit the OMP_NUM_THREADS=1 that runs beside others export."""
+    clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    probe = [sys.executable, "-c", "import torch; print(torch.get_num_threads())"]
+    return int(subprocess.run(probe, capture_output=True, text=True, env=clean, check=True).stdout)
+
+
 def replay_buffer_bytes(size: int = 1_000_000) -> int:
     env = gym.make("MinitaurBulletEnv-v0")
     buffer = ReplayBuffer(size, env.observation_space, env.action_space, device="cpu")
@@ -102,11 +116,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000, help="learning-phase steps")
     parser.add_argument("--warmup", type=int, default=300, help="random steps before learning")
+    parser.add_argument(
+        "--untimed", type=int, default=200, help="learning steps before timing (JIT compiles)"
+    )
     parser.add_argument("--ppo-steps", type=int, default=16384, help="timed PPO env steps")
     args = parser.parse_args()
-    default_threads = torch.get_num_threads()
+    default_threads = torch_default_threads()
 
-    baseline = measure(args.steps, args.warmup, default_threads)
+    baseline = measure(args.steps, args.warmup, default_threads, untimed=args.untimed)
     print(f"SB3 SAC defaults ({default_threads} torch threads): {baseline:.1f} env steps/s")
     variants = {
         "1 torch thread": dict(threads=1),
@@ -117,7 +134,7 @@ def main() -> None:
         ),
     }
     for name, settings in variants.items():
-        rate = measure(args.steps, args.warmup, **settings)
+        rate = measure(args.steps, args.warmup, untimed=args.untimed, **settings)
         print(f"{name}: {rate:.1f} env steps/s; ratio {rate / baseline:.2f}x the defaults")
     dummy = measure_ppo(args.ppo_steps, "dummy", default_threads)
     grouped = measure_ppo(args.ppo_steps, "grouped", default_threads)

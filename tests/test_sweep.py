@@ -236,6 +236,11 @@ def test_a_sweep_without_evaluations_is_refused_before_it_trains():
     sweep = Sweep(base=dataclasses.replace(base(), eval_freq=0), seeds=[0])
     with pytest.raises(UsageError, match="--eval-freq > 0"):
         sweep.validate()
+    # Ray itself failed at the end with a 40-line traceback: no result held eval_return.
+    sweep = Sweep(base=dataclasses.replace(base(), eval_freq=300, n_timesteps=200), seeds=[0])
+    with pytest.raises(UsageError, match="--eval-freq 300 is more than -n 200"):
+        sweep.validate()
+    Sweep(base=dataclasses.replace(base(), eval_freq=200, n_timesteps=200), seeds=[0]).validate()
 
 
 def test_the_summary_reads_the_trials_newest_run(tmp_path):

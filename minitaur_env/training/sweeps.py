@@ -74,6 +74,11 @@ class Sweep:
             raise UsageError(f"--scheduler must be asha or none, got {self.scheduler!r}")
         if not self.base.eval_freq:
             raise UsageError("a sweep compares its trials by their evaluations: --eval-freq > 0")
+        if self.base.eval_freq > self.base.n_timesteps:
+            raise UsageError(
+                f"--eval-freq {self.base.eval_freq} is more than -n {self.base.n_timesteps}: "
+                "no trial would be evaluated, and a sweep compares its trials by their evaluations"
+            )
         if self.search is not None and len(self.seeds) > 1 and self.scheduler == "asha":
             raise UsageError(
                 "--scheduler asha with --seeds > 1 in a --search would stop some seeds of a "

@@ -1,0 +1,162 @@
+"""The speed and robustness benchmark scripts, each on the smallest budget that still runs
+every code path they time, judged by what they print: the figures parse, they agree with
+the baselines and commands they name, and a setting that would skew a figure is caught.
+(keep_runs.py, minitaur_table.py: test_benchmark_table.py; learning.py and
+classic_control.py: test_classic_control.py.)"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import re
+import subprocess
+import sys
+
+import pytest
+
+from minitaur_env.training.evaluation import pretrained_models
+from tests.scripts import REPO, needs, run_script
+
+NUMBER = r"([0-9.]+)"
+
+
+def figure(pattern: str, text: str) -> list[float]:
+    found = re.search(pattern, text)
+    assert found, f"{pattern!r} not in:\n{text}"
+    return [float(group) for group in found.groups()]
+
+
+def test_env_speed_measures_the_step_against_the_physics_in_the_same_rollout(tmp_path):
+    result = run_script(
+        "benchmarks/env_speed.py", "--steps", "60", "--only", "step", "reset", cwd=tmp_path
+    )
+    assert result.returncode == 0, result.stderr
+    ours, bound, ratio = figure(
+        rf"step: ours {NUMBER} steps/s; physics-only bound {NUMBER} steps/s; ratio {NUMBER}",
+        result.stdout,
+    )
+    assert 0 < ours <= bound  # the bound is a part of the same steps' time
+    assert ratio == pytest.approx(ours / bound, abs=0.02)
+    # The classic env is either measured or the reason it was not is named, with its fix.
+    assert re.search(
+        r"step: classic env ([0-9]+ steps/s|not measured \(.*pip install)", result.stdout
+    )
+    hard, fixed, restored = figure(
+        rf"reset: ours hard {NUMBER} ms \(randomized\), {NUMBER} ms \(fixed dynamics\); "
+        rf"hard_reset=False {NUMBER} ms",
+        result.stdout,
+    )
+    assert restored < min(hard, fixed)  # restoring a saved state skips rebuilding the world
+    assert "render:" not in result.stdout and "vectorized:" not in result.stdout  # --only
+
+
+def test_onnx_speed_times_every_shipped_policy_on_three_paths(tmp_path):
+    needs("onnxruntime")
+    result = run_script(
+        "benchmarks/onnx_speed.py", "--actions", "20", "--rounds", "1", cwd=tmp_path
+    )
+    assert result.returncode == 0, result.stderr
+    shipped = {model.parents[1].name for _, model in pretrained_models()}
+    rows = {
+        line.split()[0]: line.split()[1:]
+        for line in result.stdout.splitlines()
+        if line.split() and line.split()[0] in shipped
+    }
+    assert set(rows) == shipped
+    for onnx, predict, torch_forward, ratio, size, unit in rows.values():
+        assert float(onnx) > 0 and float(torch_forward) > 0
+        assert float(ratio.rstrip("x")) == pytest.approx(float(predict) / float(onnx), rel=0.05)
+        assert float(size) > 0 and unit == "KiB"
+
+
+def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tmp_path):
+    model = next(model for _, model in pretrained_models() if model.parents[1].name == "sac")
+    cells = tmp_path / "cells.json"
+    result = run_script(
+        "benchmarks/robustness.py", "--policy", f"sac={model}", "--episodes", "1",
+        "--conditions", "pushes", "--json", str(cells), cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    cell = json.loads(cells.read_text())["sac"]["pushes"]
+    assert "| sac | " in result.stdout
+    flags = figure_line(r"^pushes: --env-kwargs (.*)$", result.stdout).split()
+    statistics = tmp_path / "evaluate.json"
+    again = run_script(
+        "evaluate.py", "--model", str(model), "--episodes", "1", "--seed", "12345",
+        "--env", "MinitaurBulletEnv-v0", "--env-kwargs", *flags, "--json", str(statistics),
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    summary = json.loads(statistics.read_text())["summary"]
+    assert summary["return"]["mean"] == pytest.approx(cell["mean"], abs=1e-6)
+
+
+def figure_line(pattern: str, text: str) -> str:
+    found = re.search(pattern, text, re.MULTILINE)
+    assert found, f"{pattern!r} not in:\n{text}"
+    return found.group(1)
+
+
+def test_threads_under_load_gives_the_default_variant_torchs_real_default(monkeypatch):
+    # Our own runs export OMP_NUM_THREADS=1; the "torch's default" variant must not inherit
+    # it, or both rows of the table would be one thread.
+    clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    default = subprocess.run(
+        [sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
+        capture_output=True, text=True, env=clean, check=True,
+    ).stdout.strip()  # fmt: skip
+    spec = importlib.util.spec_from_file_location(
+        "threads", REPO / "benchmarks/threads_under_load.py"
+    )
+    benchmark = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(benchmark)
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    rate, threads = benchmark.measure(0, steps=16, warmup=64)
+    assert rate > 0 and threads == int(default)
+
+
+def test_training_speed_times_every_variant_and_its_baseline_at_torchs_default(tmp_path):
+    needs("sbx")
+    clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    default = subprocess.run(
+        [sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
+        capture_output=True, text=True, env=clean, check=True,
+    ).stdout.strip()  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, str(REPO / "benchmarks/training_speed.py"), "--steps", "16",
+         "--warmup", "32", "--untimed", "8", "--ppo-steps", "16"],
+        capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"},
+        timeout=900, cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    (baseline,) = figure(rf"SB3 SAC defaults \({default} torch threads\): {NUMBER}", result.stdout)
+    variants = re.findall(r"^(.*): ([0-9.]+) env steps/s; ratio ([0-9.]+)x", result.stdout, re.M)
+    assert len(variants) == 4
+    for _, rate, ratio in variants:
+        # A timed window left empty would print 0.0 steps/s and a ratio of 1.00.
+        assert float(rate) > 0
+        assert float(ratio) == pytest.approx(float(rate) / baseline, abs=0.01 + 0.05 * float(ratio))
+    dummy, grouped, ratio = figure(
+        rf"DummyVecEnv {NUMBER} env steps/s; GroupedSubprocVecEnv .* {NUMBER}; ratio {NUMBER}x",
+        result.stdout,
+    )
+    assert dummy > 0 and ratio == pytest.approx(grouped / dummy, abs=0.01 + 0.05 * ratio)
+    # 1M transitions of 28 floats (observation and next observation), 8 actions, and
+    # reward, done and timeout as float32: 260 MB.
+    (mib,) = figure(rf"replay buffer of 1M transitions .*: {NUMBER} MiB", result.stdout)
+    assert mib == pytest.approx(1e6 * (28 + 28 + 8 + 3) * 4 / 2**20, abs=1)
+
+
+def test_sweep_overhead_runs_the_same_trials_both_ways(tmp_path):
+    needs("ray")
+    result = run_script(
+        "benchmarks/sweep_overhead.py", "-n", "200", "--seeds", "1", cwd=tmp_path, timeout=600
+    )
+    assert result.returncode == 0, result.stderr
+    (scripts,) = figure(rf"train.py, one after the other: {NUMBER} s", result.stdout)
+    sweep, overhead = figure(rf"sweep: {NUMBER} s; overhead \+?(-?[0-9.]+) s", result.stdout)
+    (startup,) = figure(rf"start-up to the first trial's run folder: {NUMBER} s", result.stdout)
+    assert overhead == pytest.approx(sweep - scripts, abs=0.11)
+    assert 0 < startup < sweep  # the run folder appeared while the sweep ran
+    assert not list(tmp_path.iterdir())  # its runs went to a temporary folder, not the cwd
