@@ -20,7 +20,7 @@ __all__ = [
     "Pushes",
     "Realism",
 ]
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 ENV_IDS = (
     "MinitaurBullet-v0",

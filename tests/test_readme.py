@@ -1,5 +1,5 @@
-"""The README's code that needs no training runs as written: its Python snippets, and the
-``--help`` of every command it names."""
+"""The code of the README and the documentation pages that needs no training runs as
+written: their Python snippets, in reading order, and the ``--help`` of every command."""
 
 from __future__ import annotations
 
@@ -14,7 +14,13 @@ import pytest
 from tests.scripts import REPO
 
 README = (REPO / "README.md").read_text()
-PYTHON_BLOCKS = re.findall(r"^```python\n(.*?)^```", README, flags=re.S | re.M)
+# The pages in the site's reading order (docs/index.md's toctrees).
+PAGES = [REPO / "README.md"] + [
+    REPO / "docs" / f"{name}.md"
+    for name in re.findall(r"^([a-z-]+)$", (REPO / "docs/index.md").read_text(), flags=re.M)
+]
+DOCS = "\n".join(page.read_text() for page in PAGES)
+PYTHON_BLOCKS = re.findall(r"^```python\n(.*?)^```", DOCS, flags=re.S | re.M)
 COMMANDS = [
     ["train.py"], ["evaluate.py"], ["-m", "minitaur_env.sweep"], ["-m", "minitaur_env.package"],
     ["-m", "minitaur_env.onnx"], ["-m", "minitaur_env.ship"],
@@ -39,9 +45,10 @@ def without_training(block: str) -> str:
     return "\n".join(kept)
 
 
-def test_the_readme_has_the_snippets_this_test_runs():
-    assert len(PYTHON_BLOCKS) >= 3
-    assert any("gym.make" in block for block in PYTHON_BLOCKS)
+def test_the_docs_have_the_snippets_this_test_runs():
+    assert len(PAGES) >= 10 and all(page.is_file() for page in PAGES)
+    assert len(PYTHON_BLOCKS) >= 4
+    assert any("gym.make" in block for block in re.findall(r"```python\n(.*?)```", README, re.S))
 
 
 def test_python_snippets_run(tmp_path):
@@ -69,4 +76,4 @@ def test_every_command_has_help(command):
     assert shown.returncode == 0, shown.stderr
     assert shown.stdout.startswith("usage:")
     name = command[-1].removeprefix("minitaur_env.")
-    assert name in README, f"the README does not name {name}"
+    assert name in DOCS, f"neither the README nor the docs name {name}"

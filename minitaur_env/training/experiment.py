@@ -61,7 +61,8 @@ USAGE_ERRORS = (UsageError, ValueError, TypeError, AssertionError)
 
 
 class Experiment:
-    """Build, train, checkpoint and summarize one run in its :class:`RunFolder`.
+    """Build, train, checkpoint and summarize one run in its run folder
+    (:class:`~minitaur_env.training.run_folder.RunFolder`).
 
     ``callbacks`` are SB3 callbacks added to the run's own; ``after_eval`` callbacks run
     after each evaluation (as ``EvalCallback(callback_after_eval=...)``, so they can read

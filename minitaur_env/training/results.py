@@ -30,8 +30,8 @@ class RunResult:
 
     @property
     def exit_code(self) -> int:
-        """What a script should exit with: 0; 2 (failed on a setting); 1 (diverged, or failed
-        on the env or the disk); 130 (Ctrl-C), 143 (SIGTERM)."""
+        """The status a script should exit with. 0; 2 (failed on a setting); 1 (diverged, or
+        failed on the env or the disk); 130 (Ctrl-C), 143 (SIGTERM)."""
         if self.status == "completed":
             return 0
         if self.status == "interrupted":

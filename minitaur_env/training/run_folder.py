@@ -157,7 +157,7 @@ class RunFolder:
 
     @property
     def env_name(self) -> str:
-        """The env id's name: from config.yml, so that a renamed copy (``seed0/``) still
+        """The env id's name, read from config.yml so that a renamed copy (``seed0/``) still
         finds its files; from the folder's name before the config is written."""
         if self.config.is_file():
             env = self.read_config().get("env")
@@ -172,7 +172,7 @@ class RunFolder:
 
     @property
     def final_model(self) -> Path:
-        """The final model: ``<env>.zip`` (``final_model.zip`` in runs made before)."""
+        """The final model, ``<env>.zip`` (``final_model.zip`` in runs made before)."""
         legacy = self.path / "final_model.zip"
         return legacy if legacy.is_file() and not self.zoo_model.is_file() else self.zoo_model
 
@@ -191,7 +191,7 @@ class RunFolder:
 
     @property
     def provenance(self) -> Path:
-        """Only in a shipped agent's folder (pretrained/): how it was trained and judged."""
+        """How a shipped agent was trained and judged (only in ``pretrained/`` folders)."""
         return self.path / PROVENANCE_FILE
 
     @property
