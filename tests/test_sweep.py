@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -252,3 +255,65 @@ def test_the_summary_reads_the_trials_newest_run(tmp_path):
         run.mkdir(parents=True)
         (run / "config.yml").write_text("env: Pendulum-v1\n")
     assert _newest_run(trial).path.name == "Pendulum-v1_10"
+
+
+def free_ports(count: int) -> list[int]:
+    import socket
+
+    sockets = [socket.socket() for _ in range(count)]
+    for sock in sockets:
+        sock.bind(("127.0.0.1", 0))
+    ports = [sock.getsockname()[1] for sock in sockets]
+    for sock in sockets:
+        sock.close()
+    return ports
+
+
+def test_address_runs_the_trials_on_the_cluster_it_names(tmp_path):
+    # A real one-node cluster, started as a user starts one (`ray start --head`), with its
+    # own ports and session folder, so that no other Ray on the machine is touched; it is
+    # stopped by signalling its process group, never with `ray stop` (which stops them all).
+    import tempfile
+
+    session = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))  # short: Ray's socket paths
+    gcs, dashboard, agent, agent_grpc, client, metrics, runtime_env = free_ports(7)
+    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0",
+           "OMP_NUM_THREADS": "1"}  # fmt: skip
+    head = subprocess.Popen(
+        [str(Path(sys.executable).parent / "ray"), "start", "--head", "--block",
+         "--node-ip-address", "127.0.0.1", "--port", str(gcs), "--num-cpus", "2",
+         "--include-dashboard=false",
+         "--dashboard-port", str(dashboard), "--dashboard-agent-listen-port", str(agent),
+         "--dashboard-agent-grpc-port", str(agent_grpc), "--ray-client-server-port", str(client),
+         "--metrics-export-port", str(metrics), "--runtime-env-agent-port", str(runtime_env),
+         "--temp-dir", str(session)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 300
+        while not list(session.glob("session_*/logs/raylet.out")):
+            assert head.poll() is None, "ray start --head failed"
+            assert time.monotonic() < deadline, "the Ray head did not come up in 300 s"
+            time.sleep(0.5)
+        address = f"127.0.0.1:{gcs}"
+        args = [*SWEEP_ARGS, "-n", "500", "--seeds", "1", "-f", str(tmp_path), "--name", "c"]
+        done = subprocess.run(
+            sweep_command(*args, "--address", address), cwd=tmp_path, capture_output=True,
+            text=True, timeout=600, env=env,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+        (trial,) = tmp_path.glob("c/runs/*/trial.yml")
+        node = trial.read_text().split("node: ")[1].split()[0]
+        # The trial ran on the head's node: its id is in the head's own logs, and the
+        # sweep's driver logged into the head's session, not into a local instance.
+        logs = next(session.glob("session_*/logs"))
+        assert node in (logs / "raylet.out").read_text()
+        assert list(logs.glob("python-core-driver-*.log"))
+    finally:
+        os.killpg(head.pid, signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            head.wait(timeout=10)  # its own shutdown; then the whole group, for sure
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(head.pid, signal.SIGKILL)
+        head.wait(timeout=60)
+        shutil.rmtree(session, ignore_errors=True)
