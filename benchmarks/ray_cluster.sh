@@ -10,12 +10,26 @@ port=${PORT:-6390}
 # Multi-node on one machine must be allowed explicitly; Ray >= 2.59 clusters use tokens.
 export RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=1 RAY_AUTH_MODE=token RAY_USAGE_STATS_ENABLED=0
 export RAY_worker_niceness=0 OMP_NUM_THREADS=1
-trap 'ray stop --force >/dev/null 2>&1; rm -rf "$work"' EXIT
+# Each node runs in the foreground of its own session (--block), so that stopping it
+# signals only its process group: `ray stop` would stop every Ray on the machine.
+pids=()
+stop_nodes() {
+  for pid in "${pids[@]}"; do kill -TERM -- "-$pid" 2>/dev/null || true; done
+  sleep 5
+  for pid in "${pids[@]}"; do kill -KILL -- "-$pid" 2>/dev/null || true; done
+  rm -rf "$work"
+}
+trap stop_nodes EXIT
+wait_for() { for _ in $(seq 600); do grep -q "$2" "$1" 2>/dev/null && return 0; sleep 0.5; done; return 1; }
 start=$(date +%s.%N)
-ray start --head --node-ip-address 127.0.0.1 --port "$port" --num-cpus 1 \
-  --include-dashboard=false >"$work/head.log" 2>&1
-ray start --address "127.0.0.1:$port" --node-ip-address 127.0.0.1 --num-cpus 1 \
-  >"$work/node.log" 2>&1
+setsid ray start --head --block --node-ip-address 127.0.0.1 --port "$port" --num-cpus 1 \
+  --include-dashboard=false --temp-dir "$work/ray" >"$work/head.log" 2>&1 &
+pids+=($!)
+wait_for "$work/head.log" "block forever"
+setsid ray start --block --address "127.0.0.1:$port" --node-ip-address 127.0.0.1 --num-cpus 1 \
+  >"$work/node.log" 2>&1 &
+pids+=($!)
+wait_for "$work/node.log" "block forever"
 up=$(date +%s.%N)
 python -m minitaur_env.sweep --address "127.0.0.1:$port" -f "$work/sweeps" \
   --env Pendulum-v1 --seeds 2 -n 600 --eval-freq 200 --eval-episodes 2 \
