@@ -1,4 +1,4 @@
-"""SAC policies with the stabilizers the SAC ablation measures (README, "Stabilizing SAC").
+"""SAC policies with the stabilizers the SAC ablation measures (docs/results.md, "Stabilizing SAC").
 
 ``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with three opt-in changes, each a policy
 keyword so that SB3's own ``SAC`` class trains it unchanged:

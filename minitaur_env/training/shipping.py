@@ -211,7 +211,7 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
             "trained_steps": max((steps for steps, _ in run.checkpoints()), default=steps),
             "wall_clock_min_to_model": round(minutes, 1),
             "wall_clock_note": "training time on the 2-core CPU machine, shared with other "
-                               "training runs (see the README)",
+                               "training runs (see docs/results.md)",
         },
     }  # fmt: skip
     if as_trained is not None:
