@@ -165,6 +165,55 @@ def _resume_in_child(run_path: str) -> None:
     os._exit(0 if result.status == "completed" else 3)
 
 
+def preloaded_forkserver() -> multiprocessing.context.ForkServerContext:
+    """Children forked from a server that imported this module and what a run imports
+    lazily (plots, videos, torch's compiler via Adam) once. The preload list only counts
+    before the server's first start, so every test here asks for it the same way."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(
+        [__name__, "minitaur_env.training.plotting", "minitaur_env.training.video", "torch._dynamo"]
+    )
+    return context
+
+
+def _train_until_killed_after_checkpoint(logs: str, step: int) -> None:
+    """Train, and die like a kill -9 right after the checkpoint at ``step`` is written."""
+    from minitaur_env.training import callbacks
+
+    written = callbacks.save_checked_checkpoint
+
+    def save_then_die(model, run):
+        path = written(model, run)
+        if model.num_timesteps == step:
+            os._exit(9)
+        return path
+
+    callbacks.save_checked_checkpoint = save_then_die
+    config = ExperimentConfig.resolve(
+        "sac", "ShortPendulum-v0", hyperparams=NORMALIZED_SAC, n_timesteps=300,
+        eval_freq=100, eval_episodes=1, save_freq=100, vec_env="dummy", device="cpu",
+    )  # fmt: skip
+    Experiment.create(config, logs, verbose=0, progress="none").run()
+    os._exit(0)
+
+
+def test_a_kill_after_a_checkpoint_on_an_evaluation_step_loses_no_evaluation(tmp_path):
+    # Found by the soak below: the checkpoint at 200 was written before the evaluation at
+    # 200, so a kill between them resumed from 200 and never evaluated it. Evaluations
+    # now come first: a checkpoint's step has its evaluation on disk.
+    context = preloaded_forkserver()
+    child = context.Process(target=_train_until_killed_after_checkpoint,
+                            args=(str(tmp_path / "logs"), 200))  # fmt: skip
+    child.start()
+    child.join(timeout=600)
+    assert child.exitcode == 9
+    run = RunFolder(tmp_path / "logs" / "sac" / "ShortPendulum-v0_1")
+    assert max(steps for steps, _ in run.checkpoints()) == 200
+    assert Experiment.resume(run.path, verbose=0).run().status == "completed"
+    with np.load(run.evaluations) as data:
+        assert data["timesteps"].tolist() == [100, 200, 300]
+
+
 def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path):
     """Fault injection: SIGKILL at random moments (mid-step, mid-checkpoint, mid-eval),
     then resume, 20 times. Children fork from a forkserver that imported the package
@@ -174,11 +223,7 @@ def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path)
         eval_freq=100, eval_episodes=1, save_freq=40, vec_env="dummy", device="cpu",
     )  # fmt: skip
     run = Experiment.create(config, tmp_path / "logs", verbose=0).run().run
-    context = multiprocessing.get_context("forkserver")
-    # What a run imports lazily (plots, videos, torch's compiler via Adam), imported once.
-    context.set_forkserver_preload(
-        [__name__, "minitaur_env.training.plotting", "minitaur_env.training.video", "torch._dynamo"]
-    )
+    context = preloaded_forkserver()
     rng = random.Random(0)
     outcomes, progress = [], []
     while outcomes.count(-signal.SIGKILL) < 20:

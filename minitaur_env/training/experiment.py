@@ -258,8 +258,6 @@ class Experiment:
         config, run = self.config, self.run_folder
         callbacks: list[BaseCallback] = [DivergenceGuardCallback()]
         evaluation = None
-        if config.save_freq:
-            callbacks.append(CheckpointEveryCallback(run, config.save_freq))
         if config.eval_freq:
             # SB3 writes both in place; they are staged and then moved over atomically.
             run.staging_dir.mkdir(exist_ok=True)
@@ -277,6 +275,10 @@ class Experiment:
             if self.resuming:
                 evaluation.continue_from(run.evaluations, self.resumed_at or 0, config.n_envs)
             callbacks.append(evaluation)
+        if config.save_freq:
+            # After the evaluation of the same step: a checkpoint at step N then has N's
+            # evaluation on disk; before it, a kill between the two lost that evaluation.
+            callbacks.append(CheckpointEveryCallback(run, config.save_freq))
         if config.video_freq:
             callbacks.append(
                 VideoRecorderCallback(
