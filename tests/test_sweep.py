@@ -317,3 +317,22 @@ def test_address_runs_the_trials_on_the_cluster_it_names(tmp_path):
             os.killpg(head.pid, signal.SIGKILL)
         head.wait(timeout=60)
         shutil.rmtree(session, ignore_errors=True)
+
+
+def test_a_trial_cut_off_before_its_first_checkpoint_restarts_in_one_run_folder(tmp_path):
+    # Ctrl-C before a trial's first checkpoint left a run folder that --resume could not
+    # continue; the restart then made a second one beside it (found on a loaded machine).
+    from minitaur_env.training.run_folder import RunFolder
+    from minitaur_env.training.trial import set_aside_unresumable
+
+    for _ in range(2):
+        run = RunFolder.create(tmp_path, "sac", "Pendulum-v1")
+        run.write_config(base().to_dict())
+        (run.path / "monitor").mkdir()
+        (run.path / "monitor" / "0.monitor.csv").write_text("#\nr,l,t\n-1,200,0.1\n")
+        moved = set_aside_unresumable(tmp_path, "sac", "Pendulum-v1")
+        assert len(moved) == 1 and (moved[0] / "monitor" / "0.monitor.csv").is_file()  # kept
+        assert RunFolder.all(tmp_path, "sac", "Pendulum-v1") == []
+        assert RunFolder.found_under(tmp_path) == []  # the summary's glob does not see it
+    kept = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.glob("abandoned/*/*"))
+    assert kept == ["abandoned/1/sac-Pendulum-v1_1", "abandoned/2/sac-Pendulum-v1_1"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,21 @@ def _tune_reporter() -> Any:
 
 TRIAL_SETTINGS = ("base", "seed", "runs", "num_threads", "command", "resume_command",
                   "__trial_index__")  # fmt: skip
+
+
+def set_aside_unresumable(folder: Path, algo: str, env_id: str) -> list[Path]:
+    """Move a trial's runs that have no checkpoint (a start cut off before its first one)
+    to ``abandoned/<n>/``, deeper than any run glob of the sweep looks, so that the
+    trial's fresh start is its only run. Returns where they went."""
+    moved = []
+    for unfinished in RunFolder.all(folder, algo, env_id):
+        tries = itertools.count(1)
+        while (aside := folder / "abandoned" / str(next(tries)) / unfinished.name).exists():
+            pass
+        aside.parent.mkdir(parents=True)
+        unfinished.path.rename(aside)
+        moved.append(aside)
+    return moved
 
 
 def run_trial(trial: dict[str, Any]) -> None:
@@ -84,6 +100,7 @@ def run_trial(trial: dict[str, Any]) -> None:
             options["command"] = command + which if command else None
             experiment = Experiment.resume(earlier[-1].path, **options)
         else:
+            set_aside_unresumable(folder, config.algo, config.env)
             options["command"] = trial["command"] + which if trial.get("command") else None
             config.validate()
             experiment = Experiment.create(config, folder, **options)
