@@ -11,6 +11,10 @@ import math
 import numbers
 from typing import Any
 
+import numpy as np
+
+ACTION_TOLERANCE = 0.01  # the classic env accepts actions up to 1.01 in magnitude
+
 
 def _interval(low: float, high: float, low_open: bool, high_open: bool) -> str:
     def shown(value: float) -> str:
@@ -70,3 +74,22 @@ def choice(name: str, value: Any, options: tuple[str, ...]) -> str:
     if value not in options:
         raise ValueError(f"{name} must be one of {options}, got {value!r}")
     return value
+
+
+def checked_action(action: Any, size: int) -> np.ndarray:
+    """``action`` as float64 if it is ``size`` finite real numbers within [-1.01, 1.01]."""
+    given = np.asarray(action)
+    # Bools and complex numbers convert to floats silently; an action is a real number.
+    if given.dtype.kind not in "iuf":
+        raise ValueError(f"action must be real numbers, got {given.dtype} {action!r}")
+    checked = given.astype(np.float64, copy=False)
+    if checked.shape != (size,):
+        raise ValueError(f"action must have shape ({size},), got {checked.shape}")
+    if not np.all(np.isfinite(checked)):
+        raise ValueError(f"action must be finite, got {checked.tolist()}")
+    if np.any(np.abs(checked) > 1.0 + ACTION_TOLERANCE):
+        worst = int(np.argmax(np.abs(checked)))
+        raise ValueError(
+            f"action[{worst}] = {checked[worst]} is outside [-1, 1] (tolerance {ACTION_TOLERANCE})"
+        )
+    return checked

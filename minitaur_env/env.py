@@ -12,7 +12,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
-from minitaur_env.checks import boolean, choice, integer, number
+from minitaur_env.checks import boolean, checked_action, choice, integer, number
 from minitaur_env.randomization import DynamicsRanges, Pushes, apply_dynamics, sample_dynamics
 from minitaur_env.robot import (
     DEFAULT_GAINS,
@@ -41,7 +41,6 @@ SUBSTEPS = 5  # physics steps per control step with a simulated motor model
 SOLVER_ITERATIONS = 300  # per control step; split over the substeps
 GRAVITY = -10.0
 SETTLE_STEPS = 100  # physics steps holding every motor at pi/2 before an episode
-ACTION_TOLERANCE = 0.01  # the classic env accepts actions up to 1.01 in magnitude
 FALL_UP_Z = 0.85  # the base's up axis must keep this world-z component
 FALL_HEIGHT = 0.13  # m, minimum base height
 
@@ -419,7 +418,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         robot = self._robot
         if robot is None:
             raise ResetNeeded("call reset() before step()")
-        targets = leg_model_to_motor_angles(self._checked_action(action))
+        targets = leg_model_to_motor_angles(checked_action(action, NUM_MOTORS))
         sim, history = self._sim, self._history
         pd_latency, pushes = self.realism.pd_latency, self.realism.pushes
         for _ in range(self._physics_steps_per_action):
@@ -493,25 +492,6 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._robot = None
 
     # -- internals -------------------------------------------------------------
-    def _checked_action(self, action: Any) -> np.ndarray:
-        given = np.asarray(action)
-        # Bools and complex numbers convert to floats silently; an action is a real number.
-        if given.dtype.kind not in "iuf":
-            raise ValueError(f"action must be real numbers, got {given.dtype} {action!r}")
-        action = given.astype(np.float64, copy=False)
-        if action.shape != (NUM_MOTORS,):
-            raise ValueError(f"action must have shape ({NUM_MOTORS},), got {action.shape}")
-        if not np.all(np.isfinite(action)):
-            raise ValueError(f"action must be finite, got {action.tolist()}")
-        limit = 1.0 + ACTION_TOLERANCE
-        if np.any(np.abs(action) > limit):
-            worst = int(np.argmax(np.abs(action)))
-            raise ValueError(
-                f"action[{worst}] = {action[worst]} is outside [-1, 1] "
-                f"(tolerance {ACTION_TOLERANCE})"
-            )
-        return action
-
     def _observation(self, reading: np.ndarray) -> np.ndarray:
         return observe(
             reading,

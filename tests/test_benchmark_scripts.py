@@ -160,3 +160,24 @@ def test_sweep_overhead_runs_the_same_trials_both_ways(tmp_path):
     assert overhead == pytest.approx(sweep - scripts, abs=0.11)
     assert 0 < startup < sweep  # the run folder appeared while the sweep ran
     assert not list(tmp_path.iterdir())  # its runs went to a temporary folder, not the cwd
+
+
+def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path):
+    result = run_script(
+        "benchmarks/gait_prior.py", "--episodes", "1", "--frequency", "4", "0.01", cwd=tmp_path
+    )
+    assert result.returncode == 0, result.stderr
+    cell = r"(-?[0-9.]+) at (-?[0-9.]+) m/s, ([0-9]+) falls"
+    rest, rest_speed, _ = figure(rf"baseline, no generator, classic: +{cell}", result.stdout)
+    trot, speed, falls = figure(
+        rf"trot 4 Hz, extension 0.7, swing 0.3, classic: +{cell}", result.stdout
+    )
+    # The legs at rest make no distance; the trot walks the whole episode.
+    assert abs(rest) < 0.5 and abs(rest_speed) < 0.05
+    assert trot > 5 and speed > 0.5 and falls == 0
+    # A generator 400 times slower barely moves the legs: the distance is the trot's.
+    (slow,) = figure(
+        r"trot 0.01 Hz, extension 0.7, swing 0.3, classic: +(-?[0-9.]+)", result.stdout
+    )
+    assert abs(slow) < 1
+    assert len(re.findall(r"^trot ", result.stdout, re.M)) == 6  # 2 settings x 3 conditions

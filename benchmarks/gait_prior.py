@@ -1,0 +1,75 @@
+"""What the trotting generator does alone: the gait prior's policy outputting zeros.
+
+For each generator setting, plays the zero action for whole episodes on the trotting
+ids and prints the return, the speed and the falls, under the classic dynamics, Tan et
+al.'s randomization (``MinitaurBulletTrotRandomized-v0``) and that with pushes. The
+baseline, measured in the same run: the classic env holding its zero action (every leg
+at rest), which is what a policy outputting zeros does without the prior.
+
+    python benchmarks/gait_prior.py [--episodes 5] [--frequency 2.5 4] [--extension 0.6]
+        [--swing 0.3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import minitaur_env  # registers the ids
+
+CONDITIONS = {
+    "classic": ("MinitaurBulletTrot-v0", {}),
+    "tan2018": ("MinitaurBulletTrotRandomized-v0", {}),
+    "tan2018 + pushes": ("MinitaurBulletTrotRandomized-v0", {"pushes": True}),
+}
+
+
+def play(env_id: str, kwargs: dict[str, Any], episodes: int, action_size: int) -> str:
+    """Mean return, mean speed and falls of the zero action over seeded episodes."""
+    returns, speeds, falls = [], [], 0
+    for seed in range(episodes):
+        env = gym.make(env_id, **kwargs)
+        env.reset(seed=seed)
+        total, seconds, terminated, truncated = 0.0, 0.0, False, False
+        while not (terminated or truncated):
+            _, reward, terminated, truncated, info = env.step(np.zeros(action_size))
+            total += float(reward)
+            seconds += env.unwrapped.dt
+        returns.append(total)
+        speeds.append(info["base_position"][0] / seconds)
+        falls += int(terminated)
+        env.close()
+    return f"{np.mean(returns):6.2f} at {np.mean(speeds):4.2f} m/s, {falls} falls"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=5, help="seeds 0..N-1 per cell")
+    parser.add_argument("--frequency", type=float, nargs="+", default=[minitaur_env.Trot.frequency])
+    parser.add_argument("--extension", type=float, nargs="+", default=[minitaur_env.Trot.extension])
+    parser.add_argument("--swing", type=float, nargs="+", default=[minitaur_env.Trot.swing])
+    args = parser.parse_args()
+
+    print(f"zero action, {args.episodes} episodes (seeds 0-{args.episodes - 1}) per cell")
+    classic_ids = {"classic": "MinitaurBulletEnv-v0", "tan2018": "MinitaurBulletRandomized-v0"}
+    for condition, (_, kwargs) in CONDITIONS.items():
+        env_id = classic_ids.get(condition, "MinitaurBulletRandomized-v0")
+        print(f"baseline, no generator, {condition}: {play(env_id, kwargs, args.episodes, 8)}")
+    for frequency, extension, swing in itertools.product(
+        args.frequency, args.extension, args.swing
+    ):
+        gait = {"frequency": frequency, "extension": extension, "swing": swing}
+        for condition, (env_id, kwargs) in CONDITIONS.items():
+            figures = play(env_id, {**kwargs, "gait": gait}, args.episodes, 11)
+            print(
+                f"trot {frequency:g} Hz, extension {extension:g}, swing {swing:g}, "
+                f"{condition}: {figures}"
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,137 @@
+"""The gait prior: a trotting generator the policy modulates, with residuals (PMTG)."""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+from minitaur_env import MinitaurBulletEnv, Trot, TrottingGait
+
+STILL = np.zeros(11)
+
+
+def walk(env: gym.Env, steps: int, action: np.ndarray = STILL) -> tuple[int, dict]:
+    """Play ``action`` for up to ``steps`` steps; the steps played and the last info."""
+    env.reset(seed=0)
+    played, terminated, truncated, info = 0, False, False, {}
+    while played < steps and not (terminated or truncated):
+        _, _, terminated, truncated, info = env.step(action)
+        played += 1
+    return played, info
+
+
+@pytest.mark.parametrize("env_id", ["MinitaurBulletTrot-v0", "MinitaurBulletTrotRandomized-v0"])
+def test_the_trotting_ids_pass_the_gymnasium_and_sb3_checkers(env_id):
+    env = gym.make(env_id)
+    assert isinstance(env.unwrapped, MinitaurBulletEnv)
+    assert env.action_space.shape == (11,) and env.observation_space.shape == (30,)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        # Both checkers advise checking the unwrapped env; this one is the wrapper.
+        warnings.filterwarnings("ignore", message=".*different from the unwrapped version")
+        gym_check_env(env.env.env, skip_render_check=True)  # below TimeLimit and the checker
+        sb3_check_env(env.env.env, warn=True, skip_render_check=True)
+    env.close()
+
+
+def test_the_generator_alone_trots_forward_and_no_generator_stands_still():
+    trotting = gym.make("MinitaurBulletTrot-v0", randomize_dynamics=False)
+    steps, info = walk(trotting, 300)
+    assert steps == 300 and info["base_position"][0] > 0.5  # 3 s at about 0.9 m/s
+    # Negative control: with both amplitudes 0 the same zero action holds the legs still.
+    still = gym.make(
+        "MinitaurBulletTrot-v0", randomize_dynamics=False, gait={"extension": 0, "swing": 0}
+    )
+    steps, info = walk(still, 300)
+    assert steps == 300 and abs(info["base_position"][0]) < 0.05
+    trotting.close()
+    still.close()
+
+
+def test_with_no_generator_the_residuals_are_the_classic_action():
+    # Amplitudes 0 and a residual range of 1: the policy's first 8 entries are the
+    # classic env's action, so both envs follow the same trajectory bit for bit.
+    classic = MinitaurBulletEnv(randomize_dynamics=False)
+    gait = TrottingGait(
+        MinitaurBulletEnv(randomize_dynamics=False), {"extension": 0, "swing": 0, "residual": 1}
+    )
+    rng = np.random.default_rng(0)
+    first, _ = classic.reset(seed=3)
+    wrapped, _ = gait.reset(seed=3)
+    np.testing.assert_array_equal(wrapped[:28], first)
+    for _ in range(50):
+        action = rng.uniform(-1, 1, 11)
+        expected = classic.step(action[:8])
+        got = gait.step(action)
+        np.testing.assert_array_equal(got[0][:28], expected[0])
+        assert got[1] == expected[1]
+    classic.close()
+    gait.close()
+
+
+def test_the_policy_sets_the_frequency_and_the_phase_follows_the_episodes_control_step():
+    env = gym.make("MinitaurBulletTrotRandomized-v0", gait={"frequency": 2.0, "modulation": 0.5})
+    observation, info = env.reset(seed=5)
+    dt = env.unwrapped.dt
+    # Drawn for the episode, rounded to the 2 ms physics step.
+    assert dt != 0.01 and info["dynamics"].control_step == pytest.approx(dt, abs=0.001)
+    np.testing.assert_allclose(observation[-2:], [0.0, 1.0])  # sin, cos of phase 0
+    faster = STILL.copy()
+    faster[8] = 1.0  # frequency x (1 + 0.5)
+    observation, _, _, _, info = env.step(faster)
+    assert info["gait_frequency"] == pytest.approx(3.0)
+    phase = 2 * math.pi * 3.0 * dt
+    np.testing.assert_allclose(observation[-2:], [math.sin(phase), math.cos(phase)], atol=1e-6)
+    _, _, _, _, info = env.step(STILL)
+    assert info["gait_phase"] == pytest.approx(phase) and info["gait_frequency"] == 2.0
+    env.close()
+
+
+def test_the_amplitudes_the_policy_asks_for_reach_the_legs():
+    gait = TrottingGait(MinitaurBulletEnv(), {"extension": 0.4, "swing": 0.2, "modulation": 0.5})
+    gait.reset(seed=0)
+    wider = np.zeros(11)
+    wider[9:] = 1.0
+    leg_action, _ = gait.leg_action(wider)
+    np.testing.assert_allclose(leg_action, Trot().leg_actions(0.0, 0.6, 0.3))
+    np.testing.assert_allclose(leg_action[:4], [0.6, -0.6, -0.6, 0.6], atol=1e-12)
+    gait.close()
+
+
+@pytest.mark.parametrize(
+    ("gait", "message"),
+    [
+        ({"frequency": 0}, "gait frequency must be in (0, 10] Hz, got 0"),
+        ({"swing": "wide"}, "gait swing must be a number in [0, 1], got 'wide'"),
+        ({"modulation": 1}, "gait modulation must be in [0, 1), got 1"),
+        ({"speed": 2}, "gait has no setting 'speed'"),
+        ("trot", "gait must be a mapping of Trot settings, got 'trot'"),
+    ],
+)
+def test_bad_gait_settings_are_one_line_naming_the_setting(gait, message):
+    with pytest.raises(ValueError, match="^" + re.escape(message)):
+        gym.make("MinitaurBulletTrot-v0", gait=gait)
+
+
+@pytest.mark.parametrize(
+    ("action", "message"),
+    [
+        (np.zeros(8), r"action must have shape \(11,\), got \(8,\)"),
+        (np.full(11, np.nan), "action must be finite"),
+        (np.full(11, 1.5), r"action\[0\] = 1.5 is outside \[-1, 1\]"),
+        (np.zeros(11, dtype=bool), "action must be real numbers"),
+    ],
+)
+def test_bad_actions_are_refused_before_they_reach_the_robot(action, message):
+    env = gym.make("MinitaurBulletTrot-v0").env.env  # below the passive checker
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step(action)
+    env.close()
