@@ -42,6 +42,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--stochastic", dest="deterministic", action="store_false", help="sample actions"
     )
     add("--json", type=Path, metavar="PATH", help="also write the statistics as JSON")
+    add(
+        "--realism",
+        action="store_true",
+        help="also the shares of steps with a motor at its torque or velocity limit, and "
+        "the foot slip (minitaur_env.realism)",
+    )
     add("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="keyword arguments for the env")
     add("--render-video", action="store_true", help="write an mp4 of --video-episodes episodes")
     add("-o", "--output", type=Path, help="video path (default: videos/<env>_<algo>_<time>.mp4)")

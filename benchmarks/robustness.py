@@ -7,8 +7,9 @@ per condition, each cell the mean +- std return and the falls over unseen episod
 Every cell is what ``python evaluate.py --model M --episodes 20 --seed 12345
 --env MinitaurBulletEnv-v0 --env-kwargs K`` reports, with K the column's keyword
 arguments (printed below the table). The episodes' seeds (12345..) are the docs' report
-report seeds, never used in training or selection; the env is always
-``MinitaurBulletEnv-v0``, whatever the policy was trained on.
+report seeds, never used in training or selection; the env is ``MinitaurBulletEnv-v0``
+whatever the policy was trained on, or ``MinitaurBulletTrot-v0`` (the same env under the
+gait prior) for a policy trained with the gait prior, whose actions only it takes.
 """
 
 from __future__ import annotations
@@ -20,10 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from minitaur_env import RANDOMIZED_KWARGS
-from minitaur_env.training.evaluation import pretrained_models
+from minitaur_env.training.evaluation import load_policy, pretrained_models
 from minitaur_env.training.shipping import judge
 
 ENV_ID = "MinitaurBulletEnv-v0"
+GAIT_ENV_ID = "MinitaurBulletTrot-v0"
 CONDITIONS: dict[str, dict[str, Any]] = {
     "nominal": {},
     "latency 20 ms": {"control_latency": 0.02},
@@ -58,8 +60,10 @@ def main() -> int:
 
     cells: dict[str, dict[str, dict[str, float]]] = {}
     for label, model in policies.items():
+        trained_on = load_policy(model).env_id or ENV_ID
+        env_id = GAIT_ENV_ID if "Trot" in trained_on else ENV_ID
         for name, kwargs in conditions.items():
-            cell = judge(model, args.episodes, args.seed, ENV_ID, kwargs)
+            cell = judge(model, args.episodes, args.seed, env_id, kwargs)
             cells.setdefault(label, {})[name] = cell
             print(f"{label:24s} {name:22s} {cell['mean']:6.2f} +- {cell['std']:5.2f}  "
                   f"falls {cell['falls']}/{args.episodes}", flush=True)  # fmt: skip

@@ -324,6 +324,13 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._live_sim()
 
     @property
+    def ground(self) -> int:
+        """The body id of the plane the robot walks on."""
+        if self._robot is None:
+            raise ResetNeeded("call reset() before using the ground")
+        return self._plane
+
+    @property
     def robot(self) -> Minitaur:
         """The robot of the current episode."""
         if self._robot is None:

@@ -18,6 +18,7 @@ SPEED_LIMIT = NOMINAL_VOLTAGE / TORQUE_CONSTANT  # rad/s, no-load speed at nomin
 
 _CURRENT_TABLE = np.array([0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0])  # A
 _TORQUE_TABLE = np.array([0.0, 1.0, 1.9, 2.45, 3.0, 3.25, 3.5])  # N m
+SATURATION_CURRENT = float(_CURRENT_TABLE[-1])  # A: the torque is at its limit from here
 
 
 class MotorModel:
@@ -41,6 +42,9 @@ class MotorModel:
         self.kd = kd
         self.voltage = voltage
         self.viscous_damping = viscous_damping
+        # The winding current of the last call (A): beyond the table's last entry the
+        # torque stops growing (benchmarks/realism.py counts the steps it spends there).
+        self.last_current = np.zeros(0)
 
     def torques(
         self,
@@ -71,6 +75,6 @@ class MotorModel:
             ),
             VOLTAGE_CLIPPING,
         )
-        current = net_voltage / RESISTANCE
+        current = self.last_current = net_voltage / RESISTANCE
         actual = np.sign(current) * np.interp(np.abs(current), _CURRENT_TABLE, _TORQUE_TABLE)
         return actual, observed

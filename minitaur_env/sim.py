@@ -258,6 +258,25 @@ class BulletSim:
         """(position xyz, orientation quaternion xyzw) of the body's base."""
         return pybullet.getBasePositionAndOrientation(body, physicsClientId=self._id)
 
+    def contact_points(self, body: int, other: int) -> list[tuple[int, np.ndarray]]:
+        """(link of ``body``, world position on ``body``) of each contact with ``other``."""
+        return [
+            (point[3], np.array(point[5]))
+            for point in pybullet.getContactPoints(body, other, physicsClientId=self._id)
+        ]
+
+    def point_velocity(self, body: int, link: int, point: np.ndarray) -> np.ndarray:
+        """World velocity (m/s) of the material point of ``link`` now at ``point``."""
+        if link == -1:
+            linear, angular = pybullet.getBaseVelocity(body, physicsClientId=self._id)
+            centre, _ = self.base_pose(body)
+        else:
+            state = pybullet.getLinkState(
+                body, link, computeLinkVelocity=1, physicsClientId=self._id
+            )
+            centre, linear, angular = state[0], state[6], state[7]
+        return np.array(linear) + np.cross(angular, point - np.array(centre))
+
     def has_contact(self, body_a: int, body_b: int) -> bool:
         return len(pybullet.getContactPoints(body_a, body_b, physicsClientId=self._id)) > 0
 

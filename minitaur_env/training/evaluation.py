@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from minitaur_env.onnx_policy import OnnxPolicy
+from minitaur_env.realism import RealismProbe
 from minitaur_env.training import ALGORITHM_NAMES, UsageError, env_name, missing_dependency
 from minitaur_env.training.files import read_yaml
 from minitaur_env.training.run_folder import PROVENANCE_FILE, RunFolder
@@ -238,6 +239,8 @@ def run_episodes(
         obs, info = env.reset(seed=seed + episode)
         start = np.asarray(info.get("base_position", np.zeros(3)), dtype=float)
         totals = dict.fromkeys(REWARD_TERMS, 0.0)
+        limits = {"at_torque_limit": 0, "at_velocity_limit": 0}
+        slips: list[float] = []
         episode_return, length = 0.0, 0
         terminated = truncated = False
         while not (terminated or truncated):
@@ -248,12 +251,21 @@ def run_episodes(
             length += 1
             for term in REWARD_TERMS:
                 totals[term] += float(info.get(term, 0.0))
+            if "foot_slip" in info:  # a RealismProbe (play(..., realism=True))
+                limits["at_torque_limit"] += info["motors_at_torque_limit"] > 0
+                limits["at_velocity_limit"] += info["motors_at_velocity_limit"] > 0
+                if not np.isnan(info["foot_slip"]):
+                    slips.append(info["foot_slip"])
         record = {"return": episode_return, "length": float(length), "fell": float(terminated)}
         if "base_position" in info:
             distance = float(np.asarray(info["base_position"])[0] - start[0])
             record["distance"] = distance
             record["speed"] = distance / (length * dt) if dt else float("nan")
             record.update(totals)
+        if "foot_slip" in info:
+            # Shares of the episode's steps with at least one motor at the limit.
+            record.update({key: count / length for key, count in limits.items()})
+            record["foot_slip"] = float(np.mean(slips)) if slips else float("nan")
         records.append(record)
     return records
 
@@ -265,11 +277,22 @@ def play(
     episodes: int,
     seed: int,
     deterministic: bool = True,
+    realism: bool = False,
 ) -> list[dict[str, float]]:
-    """:func:`run_episodes` in a fresh env of ``env_id``, closed afterwards."""
+    """:func:`run_episodes` in a fresh env of ``env_id``, closed afterwards.
+
+    ``realism``: also the shares of steps with a motor at its torque or velocity limit,
+    and the foot slip (:mod:`minitaur_env.realism`).
+    """
     from minitaur_env.training.single_env import make_env
 
     env = make_env(env_id, env_kwargs)
+    if realism:
+        try:
+            env = RealismProbe(env)
+        except ValueError as error:
+            env.close()
+            raise UsageError(f"--realism on {env_id}: {error}") from error
     try:
         return run_episodes(policy, env, episodes, seed, deterministic)
     finally:
@@ -300,6 +323,9 @@ LABELS = {
     "reward_energy": "reward: energy",
     "reward_drift": "reward: drift",
     "reward_shake": "reward: shake",
+    "at_torque_limit": "steps at a torque limit",
+    "at_velocity_limit": "steps at a velocity limit",
+    "foot_slip": "foot slip in contact (m/s)",
 }
 
 
