@@ -6,8 +6,12 @@ al.'s randomization (``MinitaurBulletTrotRandomized-v0``) and that with pushes. 
 baseline, measured in the same run: the classic env holding its zero action (every leg
 at rest), which is what a policy outputting zeros does without the prior.
 
+``--push-forces`` also measures how hard the pushes are: at each fixed force, in a
+random horizontal direction every 1.2 s under the classic dynamics, how many pushes the
+legs at rest and the open-loop trot take, and how many episodes end in a fall.
+
     python benchmarks/gait_prior.py [--episodes 5] [--frequency 2.5 4] [--extension 0.6]
-        [--swing 0.3]
+        [--swing 0.3] [--push-forces 40 80 120 160]
 """
 
 from __future__ import annotations
@@ -46,12 +50,29 @@ def play(env_id: str, kwargs: dict[str, Any], episodes: int, action_size: int) -
     return f"{np.mean(returns):6.2f} at {np.mean(speeds):4.2f} m/s, {falls} falls"
 
 
+def pushes_taken(env_id: str, force: float, episodes: int, action_size: int) -> str:
+    """Pushes begun and falls over seeded episodes, every push of ``force`` newtons."""
+    pushes, falls = 0, 0
+    for seed in range(episodes):
+        env = gym.make(env_id, pushes={"force": [force, force]})
+        env.reset(seed=seed)
+        pushed, terminated, truncated = False, False, False
+        while not (terminated or truncated):
+            _, _, terminated, truncated, info = env.step(np.zeros(action_size))
+            pushes += info["push_force"].any() and not pushed
+            pushed = bool(info["push_force"].any())
+        falls += int(terminated)
+        env.close()
+    return f"{pushes} pushes, {falls} falls"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5, help="seeds 0..N-1 per cell")
     parser.add_argument("--frequency", type=float, nargs="+", default=[minitaur_env.Trot.frequency])
     parser.add_argument("--extension", type=float, nargs="+", default=[minitaur_env.Trot.extension])
     parser.add_argument("--swing", type=float, nargs="+", default=[minitaur_env.Trot.swing])
+    parser.add_argument("--push-forces", type=float, nargs="*", default=[], metavar="N")
     args = parser.parse_args()
 
     print(f"zero action, {args.episodes} episodes (seeds 0-{args.episodes - 1}) per cell")
@@ -69,6 +90,10 @@ def main() -> None:
                 f"trot {frequency:g} Hz, extension {extension:g}, swing {swing:g}, "
                 f"{condition}: {figures}"
             )
+    for force in args.push_forces:
+        rest = pushes_taken("MinitaurBulletEnv-v0", force, args.episodes, 8)
+        trot = pushes_taken("MinitaurBulletTrot-v0", force, args.episodes, 11)
+        print(f"pushes of {force:g} N: legs at rest {rest}; default trot {trot}")
 
 
 if __name__ == "__main__":

@@ -164,8 +164,9 @@ def test_sweep_overhead_runs_the_same_trials_both_ways(tmp_path):
 
 def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path):
     result = run_script(
-        "benchmarks/gait_prior.py", "--episodes", "1", "--frequency", "4", "0.01", cwd=tmp_path
-    )
+        "benchmarks/gait_prior.py", "--episodes", "1", "--frequency", "4", "0.01",
+        "--push-forces", "0.001", "300", cwd=tmp_path,
+    )  # fmt: skip
     assert result.returncode == 0, result.stderr
     cell = r"(-?[0-9.]+) at (-?[0-9.]+) m/s, ([0-9]+) falls"
     rest, rest_speed, _ = figure(rf"baseline, no generator, classic: +{cell}", result.stdout)
@@ -181,3 +182,8 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
     )
     assert abs(slow) < 1
     assert len(re.findall(r"^trot ", result.stdout, re.M)) == 6  # 2 settings x 3 conditions
+    # A push of 1 mN is nothing; 300 N topples a robot standing still at the first push.
+    taken = r"([0-9]+) pushes, ([0-9]+) falls"
+    pushes = rf"legs at rest {taken}; default trot {taken}"
+    assert figure(rf"pushes of 0.001 N: {pushes}", result.stdout) == [8, 0, 8, 0]
+    assert figure(rf"pushes of 300 N: {pushes}", result.stdout) == [1, 1, 1, 1]
