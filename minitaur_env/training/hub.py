@@ -97,7 +97,7 @@ def package_for_hub(
         )
     finally:
         env.close()
-    _model_card(policy, env_id, folder, config, results).save(folder / "README.md")
+    _model_card(policy, env_id, folder, config, results, env_kwargs).save(folder / "README.md")
     return folder
 
 
@@ -130,6 +130,7 @@ def _model_card(
     folder: Path,
     config: dict[str, Any],
     results: dict[str, Any],
+    env_kwargs: dict[str, Any],
 ) -> Any:
     from huggingface_hub import ModelCard, ModelCardData
     from huggingface_hub.repocard import metadata_eval_result
@@ -168,6 +169,14 @@ def _model_card(
         )
     else:
         normalization = ""
+    # The env the policy was trained on: its id and the keyword arguments of its run.
+    make = f'gym.make("{env_id}"' + (f", **{env_kwargs!r})" if env_kwargs else ")")
+    actions = "actions in env units out"
+    if "Trot" in env_id:
+        actions += (
+            f" (the gait prior's {policy.model.action_space.shape[0]} entries: step "
+            f"`{make}` with them, whose `TrottingGait` runs the trotting generator)"
+        )
     body = f"""
 # **{algo_class}** agent playing **{env_id}**
 
@@ -187,7 +196,7 @@ from {module} import {algo_class}
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 model = {algo_class}.load(load_from_hub("<user>/{name}", "{name}.zip"))
-env = DummyVecEnv([lambda: gym.make("{env_id}")])
+env = DummyVecEnv([lambda: {make}])
 {normalization}obs = env.reset()
 for _ in range(1000):
     action, _ = model.predict(obs, deterministic=True)
@@ -200,7 +209,7 @@ With minitaur-env's scripts: `python evaluate.py --model {name}.zip --episodes 2
 ## Without torch: `{ONNX_POLICY}`
 
 The deterministic actor with the observation normalization folded in: raw float32
-observations in (`obs`, shape (batch, {obs_dim})), actions in env units out.
+observations in (`obs`, shape (batch, {obs_dim})), {actions}.
 `pip install onnxruntime`, then:
 
 ```python
