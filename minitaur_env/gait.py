@@ -21,8 +21,9 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
-from minitaur_env.checks import checked_action, number
+from minitaur_env.checks import checked_action, integer, number
 from minitaur_env.env import MinitaurBulletEnv
 from minitaur_env.robot import NUM_MOTORS
 
@@ -30,6 +31,7 @@ from minitaur_env.robot import NUM_MOTORS
 # later (the leg order of the action: front-left, back-left, front-right, back-right).
 TROT_PHASE_OFFSETS = np.array([0.0, math.pi, math.pi, 0.0])
 MODULATION_ENTRIES = 3  # frequency, extension amplitude, swing amplitude
+MAX_HISTORY = 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,7 +144,20 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
 
 
 def make_trotting_env(
-    render_mode: str | None = None, gait: Trot | Mapping[str, Any] | None = None, **kwargs: Any
-) -> TrottingGait:
-    """``MinitaurBulletEnv(render_mode, **kwargs)`` driven through a :class:`TrottingGait`."""
-    return TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait)
+    render_mode: str | None = None,
+    gait: Trot | Mapping[str, Any] | None = None,
+    history: int = 1,
+    **kwargs: Any,
+) -> gym.Env:
+    """``MinitaurBulletEnv(render_mode, **kwargs)`` driven through a :class:`TrottingGait`.
+
+    ``history`` (1 to 16): the policy sees the last ``history`` observations, newest last,
+    flattened into one vector (the first observation repeated at reset). Under latency
+    and pushes a single observation says where the body is but not where it is going; the
+    classic observation has no base velocity.
+    """
+    history = integer("history", history, 1, MAX_HISTORY)
+    env: gym.Env = TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait)
+    if history > 1:
+        env = FlattenObservation(FrameStackObservation(env, history))
+    return env
