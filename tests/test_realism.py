@@ -102,3 +102,16 @@ def test_the_probe_refuses_an_env_without_the_motor_model(control):
     with pytest.raises(ValueError, match="needs the DC motor model"):
         RealismProbe(env)
     env.close()
+
+
+def test_the_probe_only_watches_the_same_episode_unfolds_with_and_without_it():
+    rng = np.random.default_rng(2)
+    actions = rng.uniform(-1, 1, (60, 8))
+    plain, probed = MinitaurBulletEnv(), RealismProbe(MinitaurBulletEnv())
+    np.testing.assert_array_equal(plain.reset(seed=7)[0], probed.reset(seed=7)[0])
+    for action in actions:
+        expected, got = plain.step(action), probed.step(action)
+        np.testing.assert_array_equal(got[0], expected[0])
+        assert got[1] == expected[1]
+    plain.close()
+    probed.close()
