@@ -41,7 +41,7 @@ intersphinx_mapping: dict[str, tuple[str, str | None]] = {}
 # objects cannot, without the network, nor can names that only exist for type checkers.
 nitpicky = True
 nitpick_ignore_regex = [
-    ("py:class", r"(pathlib|numpy|collections|gymnasium|stable_baselines3|torch)\..*"),
+    ("py:class", r"(pathlib|numpy|collections|gymnasium|gym|stable_baselines3|torch)\..*"),
     (
         "py:class",
         r"Path|BaseCallback|BaseAlgorithm",
