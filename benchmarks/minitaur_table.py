@@ -59,6 +59,7 @@ TABLES = {
         "gSDE (log_std_init -3), actor EMA 0.999": "sac-ablation/gsde-ema/seed*",
         "gSDE (log_std_init -3), live actor": "sac-ablation/gsde-ema/seed*" + LIVE,
         "target_entropy 0 (SB3: -8)": "sac-ablation/target-entropy-0/seed*",
+        "target_entropy 0 + lin_7.3e-4": "sac-ablation/ent0-lin/seed*",
     },
 }
 REPORT = "final_model_report.json"
