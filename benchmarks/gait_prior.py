@@ -6,12 +6,13 @@ al.'s randomization (``MinitaurBulletTrotRandomized-v0``) and that with pushes. 
 baseline, measured in the same run: the classic env holding its zero action (every leg
 at rest), which is what a policy outputting zeros does without the prior.
 
-``--push-forces`` also measures how hard the pushes are: at each fixed force, in a
-random horizontal direction every 1.2 s under the classic dynamics, how many pushes the
-legs at rest and the open-loop trot take, and how many episodes end in a fall.
+``--push-forces`` also measures how hard the pushes are: at each fixed force, every 1.2 s
+under the classic dynamics, in a random horizontal direction or in each of
+``--push-directions`` (degrees; 0 forward, 90 to the left), how many pushes the legs at
+rest and the open-loop trot take, and how many episodes end in a fall.
 
     python benchmarks/gait_prior.py [--episodes 5] [--frequency 2.5 4] [--extension 0.6]
-        [--swing 0.3] [--push-forces 40 80 120 160]
+        [--swing 0.3] [--push-forces 40 80 120 160] [--push-directions 0 45 90]
 """
 
 from __future__ import annotations
@@ -50,11 +51,13 @@ def play(env_id: str, kwargs: dict[str, Any], episodes: int, action_size: int) -
     return f"{np.mean(returns):6.2f} at {np.mean(speeds):4.2f} m/s, {falls} falls"
 
 
-def pushes_taken(env_id: str, force: float, episodes: int, action_size: int) -> str:
+def pushes_taken(
+    env_id: str, force: float, direction: float | None, episodes: int, action_size: int
+) -> str:
     """Pushes begun and falls over seeded episodes, every push of ``force`` newtons."""
     pushes, falls = 0, 0
     for seed in range(episodes):
-        env = gym.make(env_id, pushes={"force": [force, force]})
+        env = gym.make(env_id, pushes={"force": [force, force], "direction": direction})
         env.reset(seed=seed)
         pushed, terminated, truncated = False, False, False
         while not (terminated or truncated):
@@ -73,6 +76,7 @@ def main() -> None:
     parser.add_argument("--extension", type=float, nargs="+", default=[minitaur_env.Trot.extension])
     parser.add_argument("--swing", type=float, nargs="+", default=[minitaur_env.Trot.swing])
     parser.add_argument("--push-forces", type=float, nargs="*", default=[], metavar="N")
+    parser.add_argument("--push-directions", type=float, nargs="+", metavar="DEG")
     args = parser.parse_args()
 
     print(f"zero action, {args.episodes} episodes (seeds 0-{args.episodes - 1}) per cell")
@@ -90,10 +94,11 @@ def main() -> None:
                 f"trot {frequency:g} Hz, extension {extension:g}, swing {swing:g}, "
                 f"{condition}: {figures}"
             )
-    for force in args.push_forces:
-        rest = pushes_taken("MinitaurBulletEnv-v0", force, args.episodes, 8)
-        trot = pushes_taken("MinitaurBulletTrot-v0", force, args.episodes, 11)
-        print(f"pushes of {force:g} N: legs at rest {rest}; default trot {trot}")
+    for force, direction in itertools.product(args.push_forces, args.push_directions or [None]):
+        rest = pushes_taken("MinitaurBulletEnv-v0", force, direction, args.episodes, 8)
+        trot = pushes_taken("MinitaurBulletTrot-v0", force, direction, args.episodes, 11)
+        towards = "random directions" if direction is None else f"{direction:g} degrees"
+        print(f"pushes of {force:g} N, {towards}: legs at rest {rest}; default trot {trot}")
 
 
 if __name__ == "__main__":

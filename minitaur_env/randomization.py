@@ -211,11 +211,14 @@ class Pushes:
     """Horizontal pushes on the base: a force of a random magnitude in ``force`` (N), in a
     random direction of the ground plane, for ``duration`` seconds every ``interval``
     seconds of an episode (the first at ``interval``). The defaults are Tan et al. 2018's.
+    ``direction`` (degrees from the +x axis, counterclockwise seen from above) fixes the
+    direction: 0 pushes forward, 90 to the left; the magnitudes drawn stay the same.
     """
 
     force: Range = (130.0, 220.0)
     interval: float = 1.2
     duration: float = 0.06
+    direction: float | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -233,7 +236,11 @@ class Pushes:
                 f"Pushes needs 0 < duration <= interval, got duration {duration}, "
                 f"interval {interval}"
             )
-        for name, value in (("force", (low, high)), ("interval", interval), ("duration", duration)):
+        direction = self.direction
+        if direction is not None:
+            direction = number("Pushes.direction", direction, -360, 360, unit="degrees")
+        checked = {"force": (low, high), "interval": interval, "duration": duration}
+        for name, value in {**checked, "direction": direction}.items():
             object.__setattr__(self, name, value)
 
     @classmethod
@@ -252,5 +259,7 @@ class Pushes:
     def draw(self, rng: np.random.Generator) -> np.ndarray:
         """One push's world-frame force vector (N)."""
         magnitude = rng.uniform(*self.force)
-        angle = rng.uniform(0.0, 2.0 * math.pi)
+        angle = rng.uniform(0.0, 2.0 * math.pi)  # drawn either way: the same magnitudes follow
+        if self.direction is not None:
+            angle = math.radians(self.direction)
         return np.array([magnitude * math.cos(angle), magnitude * math.sin(angle), 0.0])

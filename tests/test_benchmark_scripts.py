@@ -185,5 +185,5 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
     # A push of 1 mN is nothing; 300 N topples a robot standing still at the first push.
     taken = r"([0-9]+) pushes, ([0-9]+) falls"
     pushes = rf"legs at rest {taken}; default trot {taken}"
-    assert figure(rf"pushes of 0.001 N: {pushes}", result.stdout) == [8, 0, 8, 0]
-    assert figure(rf"pushes of 300 N: {pushes}", result.stdout) == [1, 1, 1, 1]
+    assert figure(rf"pushes of 0.001 N, random directions: {pushes}", result.stdout) == [8, 0, 8, 0]
+    assert figure(rf"pushes of 300 N, random directions: {pushes}", result.stdout) == [1, 1, 1, 1]

@@ -182,6 +182,29 @@ def test_pushes_move_the_base_and_follow_the_seed():
     assert not np.array_equal(other, first)
 
 
+def test_a_push_direction_fixes_where_the_base_goes_and_keeps_the_magnitudes():
+    standing = np.zeros(8)
+    moved, magnitudes = {}, {}
+    for direction in (None, 0.0, 90.0):
+        pushes = {"force": (100.0, 150.0), "direction": direction}
+        _, infos = observations(135, action=standing, pushes=pushes)
+        force = infos[121]["push_force"]
+        magnitudes[direction] = np.linalg.norm(force)
+        moved[direction] = infos[-1]["base_position"][:2] - infos[118]["base_position"][:2]
+        if direction is not None:
+            angle = np.radians(direction)
+            np.testing.assert_allclose(
+                force[:2] / magnitudes[direction], [np.cos(angle), np.sin(angle)], atol=1e-12
+            )
+    assert magnitudes[None] == magnitudes[0.0] == magnitudes[90.0]  # the same draws
+    assert moved[0.0][0] > 0.02 > abs(moved[0.0][1])  # forward
+    assert moved[90.0][1] > 0.02 > abs(moved[90.0][0])  # to the left
+    with pytest.raises(
+        ValueError, match=r"Pushes\.direction must be a number in \[-360, 360\] degrees"
+    ):
+        Pushes(direction="left")
+
+
 # -- IMU --------------------------------------------------------------------------------
 def test_euler_conversions_match_pybullet():
     rng = np.random.default_rng(0)
