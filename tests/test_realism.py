@@ -115,3 +115,26 @@ def test_the_probe_only_watches_the_same_episode_unfolds_with_and_without_it():
         assert got[1] == expected[1]
     plain.close()
     probed.close()
+
+
+def test_speed_uses_each_episodes_own_control_step():
+    # Under the preset every episode draws its control step: 1000 steps last 3-20 s.
+    from minitaur_env.training.evaluation import run_episodes
+
+    class Still:
+        def check_spaces(self, observation_space, action_space) -> None:
+            pass
+
+        def act(self, observation, deterministic=True):
+            return np.zeros(11)
+
+    env = gym.make("MinitaurBulletTrotRandomized-v0", max_episode_steps=30)
+    steps = {}
+    for seed in (0, 1, 2):
+        env.reset(seed=seed)
+        steps[seed] = env.unwrapped.dt
+    assert len(set(steps.values())) > 1  # the seeds draw different control steps
+    records = run_episodes(Still(), env, episodes=3, seed=0)
+    for seed, record in zip(steps, records, strict=True):
+        assert record["speed"] == pytest.approx(record["distance"] / (30 * steps[seed]))
+    env.close()

@@ -233,10 +233,11 @@ def run_episodes(
 ) -> list[dict[str, float]]:
     """One record per episode: return, length, distance, speed, fall, reward terms."""
     policy.check_spaces(env.observation_space, env.action_space)
-    dt = float(getattr(env.unwrapped, "dt", 0.0) or 0.0)
     records = []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
+        # Read after the reset: a randomized control step is drawn per episode.
+        dt = float(getattr(env.unwrapped, "dt", 0.0) or 0.0)
         start = np.asarray(info.get("base_position", np.zeros(3)), dtype=float)
         totals = dict.fromkeys(REWARD_TERMS, 0.0)
         limits = {"at_torque_limit": 0, "at_velocity_limit": 0}
