@@ -7,8 +7,10 @@ refuses them rather than letting them reach the simulator as a plausible number.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -93,3 +95,11 @@ def checked_action(action: Any, size: int) -> np.ndarray:
             f"action[{worst}] = {checked[worst]} is outside [-1, 1] (tolerance {ACTION_TOLERANCE})"
         )
     return checked
+
+
+def from_mapping(cls: Any, values: Mapping[str, Any]) -> Any:
+    """``cls(**values)`` for a dataclass, refusing a key that is not one of its fields."""
+    unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
+    if unknown:
+        raise ValueError(f"{cls.__name__} has no field {unknown[0]!r}")
+    return cls(**values)

@@ -23,7 +23,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
-from minitaur_env.checks import checked_action, integer, number
+from minitaur_env.checks import checked_action, from_mapping, integer, number
 from minitaur_env.env import MinitaurBulletEnv
 from minitaur_env.robot import NUM_MOTORS
 
@@ -74,11 +74,7 @@ class Trot:
         if isinstance(value, Trot):
             return value
         if isinstance(value, Mapping):
-            fields = {field.name for field in dataclasses.fields(cls)}
-            unknown = sorted(set(value) - fields)
-            if unknown:
-                raise ValueError(f"gait has no setting {unknown[0]!r}; it takes {sorted(fields)}")
-            return cls(**value)
+            return from_mapping(cls, value)
         raise ValueError(f"gait must be a mapping of {cls.__name__} settings, got {value!r}")
 
     def leg_actions(self, phase: float, extension: float, swing: float) -> np.ndarray:

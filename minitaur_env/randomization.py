@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from minitaur_env.checks import number
+from minitaur_env.checks import from_mapping, number
 from minitaur_env.robot import NUM_MOTORS, Minitaur
 
 Range = tuple[float, float]
@@ -118,18 +118,11 @@ class DynamicsRanges:
         if isinstance(value, cls):
             return value
         if isinstance(value, dict):
-            return _from_mapping(cls, value)
+            return from_mapping(cls, value)
         raise ValueError(
             f"dynamics_ranges must be a DynamicsRanges, a mapping of its fields, 'classic' or "
             f"'tan2018', got {value!r}"
         )
-
-
-def _from_mapping(cls: Any, values: dict[str, Any]) -> Any:
-    unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
-    if unknown:
-        raise ValueError(f"{cls.__name__} has no field {unknown[0]!r}")
-    return cls(**values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -253,7 +246,7 @@ class Pushes:
         if isinstance(value, cls):
             return value
         if isinstance(value, dict):
-            return _from_mapping(cls, value)
+            return from_mapping(cls, value)
         raise ValueError(f"pushes must be True, a Pushes or a mapping of its fields, got {value!r}")
 
     def draw(self, rng: np.random.Generator) -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from minitaur_env.checks import integer, number
+from minitaur_env.checks import from_mapping, integer, number
 from minitaur_env.randomization import Pushes
 
 CLASSIC_CONTROL_STEP = 0.01  # s, one action at 100 Hz
@@ -83,10 +83,7 @@ class Realism:
         elif isinstance(value, cls):
             realism = value
         elif isinstance(value, Mapping):
-            unknown = sorted(set(value) - {field.name for field in dataclasses.fields(cls)})
-            if unknown:
-                raise ValueError(f"Realism has no field {unknown[0]!r}")
-            realism = cls(**value)
+            realism = from_mapping(cls, value)
         else:
             raise ValueError(f"realism must be a Realism or a mapping of its fields, got {value!r}")
         given = {name: setting for name, setting in flat.items() if setting is not None}

@@ -112,7 +112,7 @@ def test_the_amplitudes_the_policy_asks_for_reach_the_legs():
         ({"frequency": 0}, "gait frequency must be in (0, 10] Hz, got 0"),
         ({"swing": "wide"}, "gait swing must be a number in [0, 1], got 'wide'"),
         ({"modulation": 1}, "gait modulation must be in [0, 1), got 1"),
-        ({"speed": 2}, "gait has no setting 'speed'"),
+        ({"speed": 2}, "Trot has no field 'speed'"),
         ("trot", "gait must be a mapping of Trot settings, got 'trot'"),
     ],
 )
