@@ -128,8 +128,8 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     def leg_action(self, action: np.ndarray) -> tuple[np.ndarray, float]:
         """The env's leg-model action for the policy's ``action`` now, and the frequency."""
         given = np.clip(checked_action(action, NUM_MOTORS + MODULATION_ENTRIES), -1.0, 1.0)
-        scale = 1.0 + self.trot.modulation * given[NUM_MOTORS:]
         trot = self.trot
+        scale = 1.0 + trot.modulation * given[NUM_MOTORS:]
         generated = trot.leg_actions(self._phase, trot.extension * scale[1], trot.swing * scale[2])
         residual = trot.residual * given[:NUM_MOTORS]
         return np.clip(generated + residual, -1.0, 1.0), trot.frequency * float(scale[0])

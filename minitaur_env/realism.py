@@ -28,7 +28,6 @@ import numpy as np
 from minitaur_env.motor import SATURATION_CURRENT, TORQUE_CONSTANT
 
 VELOCITY_LIMIT_SHARE = 0.9  # of the no-load speed
-REALISM_KEYS = ("motors_at_torque_limit", "motors_at_velocity_limit", "foot_slip")
 
 
 class RealismProbe(gym.Wrapper):
