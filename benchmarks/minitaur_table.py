@@ -31,6 +31,7 @@ import sys
 from glob import glob
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 from learning import plot  # benchmarks/ is on the path of a script run from it
 
@@ -60,9 +61,14 @@ TABLES = {
         "gSDE (log_std_init -3), live actor": "sac-ablation/gsde-ema/seed*" + LIVE,
         "target_entropy 0 (SB3: -8)": "sac-ablation/target-entropy-0/seed*",
         "target_entropy 0 + lin_7.3e-4": "sac-ablation/ent0-lin/seed*",
+        "target_entropy 0 + lin_7.3e-4 over 150k + gSDE": "sac-ablation/ent0-lin150k-gsde/seed*",
+        "target_entropy 0 + lin_7.3e-4 over 150k, batch 128": (
+            "sac-ablation/ent0-lin150k-b128/seed*"
+        ),
     },
 }
 REPORT = "final_model_report.json"
+FALL_WINDOW = (50_000, 150_000)
 NONE = "-"
 
 
@@ -89,6 +95,17 @@ def final_report(
     with atomic_path(cache) as temp:  # a stopped judge leaves no half-written result
         temp.write_text(json.dumps(result, indent=1) + "\n")
     return result
+
+
+def training_fall_share(run: RunFolder, low: int, high: int) -> float:
+    """The share of exploring (training) episodes ending between env steps ``low`` and
+    ``high`` that ended in a fall: before the env's time limit. A policy whose exploration
+    noise topples the robot learns from falls while its deterministic evaluations walk."""
+    limit = gym.spec(run.read_config()["env"]).max_episode_steps
+    episodes = sorted(run.monitor_episodes(), key=lambda episode: episode.training_time)
+    ends = np.cumsum([episode.length for episode in episodes])  # env steps, all envs
+    window = [e.length < limit for e, end in zip(episodes, ends, strict=True) if low < end <= high]
+    return float(np.mean(window)) if window else np.nan
 
 
 def cell(values: list[float], digits: int = 2) -> str:
@@ -145,6 +162,7 @@ def row(
         f"{kilo(median(steps_to(15.0), 1e-3, 0))} ({reached[15.0]})",
         median(minutes_to(5.0)), median(minutes_to(15.0)),
         median([c.steps_per_second for c in curves], digits=0),
+        cell([100 * training_fall_share(run, *FALL_WINDOW) for run in runs], 0),
     ])  # fmt: skip
     return f"| {text} |", GroupSummary(label, curves, [])
 
@@ -152,7 +170,8 @@ def row(
 HEADER = (
     "| configuration | seeds | steps | final models: mean per seed | median | falls per seed "
     "| IQM (95 % CI) | lowest eval after 15 | largest drop after 15 | steps to 5 "
-    "| steps to 15 | min to 5 | min to 15 | env steps/s |\n" + "|---" * 14 + "|"
+    "| steps to 15 | min to 5 | min to 15 | env steps/s "
+    "| training episodes fallen 50k-150k (%) |\n" + "|---" * 15 + "|"
 )
 
 

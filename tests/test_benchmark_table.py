@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 
 from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.run_folder import RunFolder
-from tests.scripts import TINY, error_lines, run_script
+from tests.scripts import REPO, TINY, error_lines, run_script
 
 FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
 
@@ -141,3 +142,20 @@ def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_
     )  # fmt: skip
     assert refused.returncode == 1
     assert error_lines(refused)[-1].endswith("has no averaged actor (actor_ema) to leave out")
+
+
+def test_the_share_of_exploring_episodes_that_fell(tmp_path, finished_run, monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # as when the script runs
+    training_fall_share = importlib.import_module("minitaur_table").training_fall_share
+
+    run = RunFolder(tmp_path / "run")
+    run.monitor_dir.mkdir(parents=True)
+    (run.path / "config.yml").write_text((finished_run / "config.yml").read_text())
+    # Episodes end at env steps 1000, 1300, 2300, 2800, 3800, 3900; the time limit is 1000.
+    lengths = [1000, 300, 1000, 500, 1000, 100]
+    rows = [f"0.0,{length},{second}.0" for second, length in enumerate(lengths, start=1)]
+    (run.monitor_dir / "0.monitor.csv").write_text('#{"t_start": 0}\nr,l,t\n' + "\n".join(rows))
+    assert training_fall_share(run, 1000, 2800) == pytest.approx(2 / 3)  # 300 and 500 fell
+    assert training_fall_share(run, 0, 3900) == pytest.approx(3 / 6)
+    assert training_fall_share(run, 2800, 3800) == 0.0  # the one episode ran to the limit
+    assert np.isnan(training_fall_share(run, 4000, 5000))  # no episode ended there
