@@ -8,6 +8,7 @@ import os
 import random
 import shutil
 import signal
+import time
 import zipfile
 
 import gymnasium as gym
@@ -227,9 +228,21 @@ def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path)
     rng = random.Random(0)
     outcomes, progress = [], []
     while outcomes.count(-signal.SIGKILL) < 20:
+        before = max((steps for steps, _ in run.checkpoints()), default=0)
         child = context.Process(target=_resume_in_child, args=(str(run.path),))
         child.start()
-        child.join(timeout=rng.uniform(0.5, 2.0))
+        if rng.random() < 0.25:  # a kill while the resume loads the run
+            child.join(timeout=rng.uniform(0.0, 0.5))
+        else:  # a kill while training: after the session's first checkpoint, wherever
+            # the clock then finds it (mid-step, mid-checkpoint, mid-evaluation). Waiting
+            # for the checkpoint, not for a fixed time, keeps a slow machine's kills out
+            # of the start-up.
+            deadline = time.monotonic() + 300
+            while child.is_alive() and time.monotonic() < deadline:
+                if max((steps for steps, _ in run.checkpoints()), default=0) > before:
+                    break
+                time.sleep(0.05)
+            child.join(timeout=rng.uniform(0.0, 1.0))
         if child.is_alive():
             child.kill()
         child.join(timeout=60)
