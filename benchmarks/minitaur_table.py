@@ -54,13 +54,13 @@ TABLES = {
         "PPO, default entry": "ppo-sweep/seed*",
     },
     "ablation": {
-        "SAC, previous default (constant 3e-4)": "sac-default/seed*",
+        "SAC, previous default (constant 3e-4)": "sac-previous-default/seed*",
         "learning_rate lin_7.3e-4": "sac-ablation/lin7e-4/seed*",
         "lin_7.3e-4 + LayerNorm critics": "sac-ablation/lin7e-4-ln/seed*",
         "gSDE (log_std_init -3), actor EMA 0.999": "sac-ablation/gsde-ema/seed*",
         "gSDE (log_std_init -3), live actor": "sac-ablation/gsde-ema/seed*" + LIVE,
         "target_entropy 0 (SB3: -8)": "sac-ablation/target-entropy-0/seed*",
-        "target_entropy 0 + lin_7.3e-4": "sac-ablation/ent0-lin/seed*",
+        "target_entropy 0 + lin_7.3e-4 (the default entry)": "sac-default/seed*",
         "target_entropy 0 + lin_7.3e-4 over 150k + gSDE": "sac-ablation/ent0-lin150k-gsde/seed*",
         "target_entropy 0 + lin_7.3e-4 over 150k, batch 128": (
             "sac-ablation/ent0-lin150k-b128/seed*"

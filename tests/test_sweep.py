@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
-from minitaur_env.training import ExperimentConfig, UsageError
+from minitaur_env.training import Experiment, ExperimentConfig, RunFolder, UsageError
 from minitaur_env.training.aggregate import default_milestones
 from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.search_space import load_search_space
@@ -64,6 +65,23 @@ def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path
         (line,) = (run / "command.txt").read_text().splitlines()
         assert line.startswith(command + "  # trial ") and line.endswith(f"seed {len(finals) - 1}")
     assert row["final_per_seed"] == " ".join(f"{v:.2f}" for v in finals)
+    # A trial is the run train.py makes with its seed: the benchmark's default-entry rows
+    # come from the sweep command and stand for `python train.py --seed S`.
+    plain = Experiment.create(dataclasses.replace(base(), seed=1), tmp_path / "plain", verbose=0)
+    assert plain.run().status == "completed"
+    (plain_run,) = RunFolder.all(tmp_path / "plain", "sac", "Pendulum-v1")
+
+    def evaluations(run: Path) -> np.ndarray:
+        with np.load(run / "evaluations.npz") as data:
+            return data["results"]
+
+    np.testing.assert_array_equal(evaluations(runs[1]), evaluations(plain_run.path))
+    assert not np.array_equal(evaluations(runs[0]), evaluations(plain_run.path))  # can fail
+    trial_actor = load_policy(RunFolder(runs[1]).final_model, device="cpu").model.policy
+    alone_actor = load_policy(plain_run.final_model, device="cpu").model.policy
+    trial_actor, alone_actor = trial_actor.state_dict(), alone_actor.state_dict()
+    assert trial_actor.keys() == alone_actor.keys()
+    assert all(torch.equal(trial_actor[key], alone_actor[key]) for key in trial_actor)
     assert row["median"] == pytest.approx(np.median(finals))
     assert row["iqm_low"] <= row["iqm"] <= row["iqm_high"]
     with (sweep.folder / "summary.csv").open() as handle:
