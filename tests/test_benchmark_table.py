@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
 from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.run_folder import RunFolder
@@ -54,6 +55,24 @@ def test_keep_runs_refuses_an_unfinished_run_in_one_line(finished_run, tmp_path)
         f"keep_runs.py: {unfinished} has no final model MinitaurBulletEnv-v0.zip; unfinished?"
     ]
     assert not (tmp_path / "results").exists()
+
+
+def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_run, tmp_path):
+    # Issue 22 ships SAC from a kept default run's final model: no checkpoints, no figure.
+    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "kept", cwd=tmp_path)
+    kept = tmp_path / "kept" / "seed3"
+    assert not RunFolder(kept).learning_curve.exists()
+    shipped = tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1"
+    result = run_script(
+        "-m", "minitaur_env.ship", str(kept), "--final-only", "--episodes", "1",
+        "--ship", str(shipped), cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert RunFolder(shipped).learning_curve.read_bytes().startswith(b"\x89PNG")
+    provenance = yaml.safe_load(RunFolder(shipped).provenance.read_text())
+    assert "final models (no checkpoint picking)" in provenance["selection"]["rule"]
+    assert provenance["training"]["seed"] == 3 and provenance["training"]["model_steps"] == 160
+    assert provenance["training"]["model"] == "MinitaurBulletEnv-v0.zip of seed3"
 
 
 def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, tmp_path):

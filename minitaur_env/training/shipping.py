@@ -23,6 +23,7 @@ from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.evaluation import load_policy, play, summarize
 from minitaur_env.training.files import read_yaml, write_yaml
 from minitaur_env.training.onnx_export import export_onnx
+from minitaur_env.training.plotting import plot_learning_curve
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import copy_statistics
 
@@ -174,7 +175,12 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
         # evaluate.py plays it (with the statistics just copied beside it).
         as_trained, reported = reported, judge(shipped.zoo_model, episodes, report_seed)
     shutil.copyfile(run.evaluations, shipped.evaluations)
-    shutil.copyfile(run.learning_curve, shipped.learning_curve)
+    if run.learning_curve.is_file():
+        shutil.copyfile(run.learning_curve, shipped.learning_curve)
+    else:  # a kept run (benchmarks/keep_runs.py) holds the evaluations, not the figure
+        plot_learning_curve(
+            run.evaluations, shipped.learning_curve, title=f"{config['algo']} on {config['env']}"
+        )
     steps = int(saved_steps(model))
     curve = RunCurve.read(run)
     minutes = float(np.interp(steps, curve.steps, curve.seconds)) / 60
