@@ -62,9 +62,6 @@ TABLES = {
         "target_entropy 0 (SB3: -8)": "sac-ablation/target-entropy-0/seed*",
         "target_entropy 0 + lin_7.3e-4 (the default entry)": "sac-default/seed*",
         "target_entropy 0 + lin_7.3e-4 over 150k + gSDE": "sac-ablation/ent0-lin150k-gsde/seed*",
-        "target_entropy 0 + lin_7.3e-4 over 150k, batch 128": (
-            "sac-ablation/ent0-lin150k-b128/seed*"
-        ),
     },
 }
 REPORT = "final_model_report.json"
