@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -35,11 +36,18 @@ def run_script(
 
 
 def start_script(
-    script: str, *args: str, cwd: Path, own_process_group: bool = False
+    script: str,
+    *args: str,
+    cwd: Path,
+    own_process_group: bool = False,
+    sigint_ignored: bool = False,
 ) -> subprocess.Popen[str]:
     """Start a script; ``own_process_group`` lets a test signal it and its workers at
-    once, as a terminal's Ctrl-C does."""
+    once, as a terminal's Ctrl-C does. The script starts with SIGINT at its default, or
+    ignored (``sigint_ignored``) as a non-interactive shell starts a background job,
+    whatever the test runner itself inherited."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    disposition = signal.SIG_IGN if sigint_ignored else signal.SIG_DFL
     return subprocess.Popen(
         # "-m", "package.module": as a user runs a module; else a script of the repository
         [sys.executable, *(["-m"] if script == "-m" else [str(REPO / script)]), *args],
@@ -49,6 +57,7 @@ def start_script(
         text=True,
         env=env,
         start_new_session=own_process_group,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, disposition),
     )
 
 

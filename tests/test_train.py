@@ -212,9 +212,12 @@ def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
     assert list(run.glob("progress-resumed-at-*.csv"))
 
 
-def test_ctrl_c_saves_model_and_replay_buffer(tmp_path):
+@pytest.mark.parametrize("sigint_ignored", [False, True], ids=["foreground", "background"])
+def test_ctrl_c_saves_model_and_replay_buffer(tmp_path, sigint_ignored):
+    # "background": started as `train.py &` from a script, SIGINT ignored at start (Python
+    # then installs no handler); an explicit `kill -INT` must still checkpoint and stop.
     args = ["-n", "100000", *FAST_SAC, "--eval-freq", "0", "--save-freq", "100", *TINY]
-    process = start_script("train.py", *args, cwd=tmp_path)
+    process = start_script("train.py", *args, cwd=tmp_path, sigint_ignored=sigint_ignored)
     _wait_for("logs/sac/*/checkpoints/rl_model_200_steps.zip", tmp_path)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)

@@ -49,7 +49,7 @@ from minitaur_env.training.runtime import (
     ignoring_more_signals,
     set_torch_threads,
     signal_of,
-    sigterm_as_exception,
+    stop_signals_as_exceptions,
 )
 from minitaur_env.training.safe_load import (
     save_normalizer,
@@ -321,7 +321,7 @@ class Experiment:
         run = self.run_folder
         started = time.perf_counter()
         lock = exclusive(run.lock_file, f"run folder {run.path}")
-        with sigterm_as_exception(), lock:
+        with stop_signals_as_exceptions(), lock:
             try:
                 self.build()
                 callbacks = self._callbacks()

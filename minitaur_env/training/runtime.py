@@ -1,4 +1,4 @@
-"""The process around a run: SIGTERM handled like Ctrl-C, and torch's thread count."""
+"""The process around a run: Ctrl-C and SIGTERM as exceptions, and torch's thread count."""
 
 from __future__ import annotations
 
@@ -14,8 +14,14 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextlib.contextmanager
-def sigterm_as_exception() -> Iterator[None]:
-    """Within the block, SIGTERM raises :class:`Terminated` (in the main thread only)."""
+def stop_signals_as_exceptions() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`Terminated` and SIGINT KeyboardInterrupt.
+
+    SIGINT is set explicitly because a process started in the background by a
+    non-interactive shell (``train.py &`` in a script, some CI runners) inherits it
+    ignored, and Python then installs no KeyboardInterrupt handler: ``kill -INT`` would
+    do nothing instead of checkpointing. Main thread only, where handlers can be set.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be set from the main thread
         return
@@ -23,11 +29,15 @@ def sigterm_as_exception() -> Iterator[None]:
     def handler(signum: int, frame: Any) -> None:
         raise Terminated(signum)
 
-    previous = signal.signal(signal.SIGTERM, handler)
+    previous = {
+        signal.SIGTERM: signal.signal(signal.SIGTERM, handler),
+        signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler),
+    }
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, earlier in previous.items():
+            signal.signal(sig, earlier)
 
 
 def signal_of(error: KeyboardInterrupt) -> int:
