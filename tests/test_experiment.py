@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import re
 import shutil
 
 import gymnasium as gym
@@ -365,15 +366,18 @@ def test_a_trained_agent_that_does_not_fit_is_one_line(tmp_path):
 
 
 class RecordsLearningRate(BaseCallback):
-    """The actor's learning rate at every env step, and a Ctrl-C at ``interrupt_at``."""
+    """The actor's learning rate and the entropy target at every env step, and a Ctrl-C at
+    ``interrupt_at``."""
 
     def __init__(self, interrupt_at: int | None = None) -> None:
         super().__init__()
         self.interrupt_at = interrupt_at
         self.rates: dict[int, float] = {}
+        self.targets: dict[int, float] = {}
 
     def _on_step(self) -> bool:
         self.rates[self.num_timesteps] = self.model.actor.optimizer.param_groups[0]["lr"]
+        self.targets[self.num_timesteps] = self.model.target_entropy
         if self.num_timesteps == self.interrupt_at:
             raise KeyboardInterrupt
         return True
@@ -400,6 +404,45 @@ def test_resume_continues_a_decaying_learning_rate_instead_of_restarting_it(tmp_
     steps = sorted(s for s in extended.rates if s > 201)
     expected = [1e-3 * (1 - (s - 1) / 300) for s in steps]  # set after step s - 1
     np.testing.assert_allclose([extended.rates[s] for s in steps], expected, rtol=1e-6)
+
+
+def test_a_decaying_entropy_target_steers_alpha_and_continues_after_a_resume(tmp_path):
+    # Rising to +50 (not falling) makes the effect visible past Adam's sign-like steps:
+    # a target above the policy's entropy pushes alpha up, the control's 0 pushes it down.
+    decay = {"target_entropy": 0, "target_entropy_decay": {"final": 50, "start": 0.5}}
+    whole = RecordsLearningRate()
+    decayed = pendulum(tmp_path / "whole", hyperparams=decay, callbacks=[whole]).run()
+    assert [whole.targets[s] for s in (1, 100, 150, 200)] == [0, 0, 25, 50]
+    control = pendulum(tmp_path / "control", hyperparams={"target_entropy": 0}).run()
+
+    def alpha(result) -> float:
+        return float(load_model(SAC, result.run.final_model).log_ent_coef.exp())
+
+    assert alpha(decayed) > alpha(control)
+
+    first = RecordsLearningRate(interrupt_at=120)
+    interrupted = pendulum(tmp_path / "cut", hyperparams=decay, callbacks=[first]).run()
+    second = RecordsLearningRate()
+    Experiment.resume(interrupted.run.path, verbose=0, callbacks=[second]).run()
+    assert min(second.targets) == 121
+    assert second.targets == {s: whole.targets[s] for s in range(121, 201)}
+
+
+@pytest.mark.parametrize(
+    ("algo", "backend", "hyperparams", "message"),
+    [
+        ("ppo", "sb3", {}, "only for --backend sb3 sac, tqc, crossq, not sb3 ppo"),
+        ("sac", "sbx", {}, "only for --backend sb3 sac, tqc, crossq, not sbx sac"),
+        ("sac", "sb3", {"ent_coef": 0.1}, "needs ent_coef: auto"),
+        ("sac", "sb3", {"target_entropy": "auto"}, "target_entropy must be a number, got 'auto'"),
+        ("sac", "sb3", {"target_entropy_decay": {"final": -4, "start": 1}}, "start must be a"),
+        ("sac", "sb3", {"target_entropy_decay": {"to": -4}}, "expected {final: <number>, start"),
+    ],
+)
+def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, backend, hyperparams, message):
+    settings = {"target_entropy": 0, "target_entropy_decay": {"final": -4}, **hyperparams}
+    with pytest.raises(UsageError, match=re.escape(message)):
+        ExperimentConfig.resolve(algo, "Pendulum-v1", hyperparams=settings, backend=backend)
 
 
 @pytest.mark.parametrize("algo", ["sac", "tqc", "crossq"])

@@ -1,5 +1,6 @@
 """Callbacks SB3 lacks: checked checkpoints, a divergence guard, evaluations that continue
-after a resume, VecNormalize saved with the best model, and a policy-video recorder."""
+after a resume, VecNormalize saved with the best model, a policy-video recorder and a
+decaying entropy target."""
 
 from __future__ import annotations
 
@@ -36,6 +37,35 @@ class DivergenceGuardCallback(BaseCallback):
         if actions is not None and not np.all(np.isfinite(actions)):
             raise TrainingDiverged(f"the policy produced a NaN action at step {self.num_timesteps}")
         return True
+
+
+class TargetEntropyDecay(BaseCallback):
+    """SAC's entropy target, held at ``initial`` until step ``start``, then decayed
+    linearly to ``final`` at step ``end``.
+
+    Set from the model's own step count before every update, so a resumed run continues
+    the decay where it stopped, as SB3's learning-rate schedules do.
+    """
+
+    def __init__(self, initial: float, final: float, start: int, end: int) -> None:
+        super().__init__()
+        self.initial, self.final = initial, final
+        self.start, self.end = start, max(end, start + 1)
+
+    def value(self, step: int) -> float:
+        fraction = min(max((step - self.start) / (self.end - self.start), 0.0), 1.0)
+        return self.initial + fraction * (self.final - self.initial)
+
+    def _init_callback(self) -> None:
+        self._apply()
+
+    def _on_step(self) -> bool:
+        self._apply()
+        return True
+
+    def _apply(self) -> None:
+        self.model.target_entropy = self.value(self.model.num_timesteps)
+        self.logger.record("train/target_entropy", self.model.target_entropy)
 
 
 class CheckpointEveryCallback(BaseCallback):

@@ -9,7 +9,12 @@ from typing import Any
 from minitaur_env.training import UsageError
 from minitaur_env.training.algorithms import algorithm_class, infer_algo
 from minitaur_env.training.envs import VEC_ENVS
-from minitaur_env.training.hyperparams import RUN_KEYS, algorithm_kwargs, load_hyperparams
+from minitaur_env.training.hyperparams import (
+    RUN_KEYS,
+    algorithm_kwargs,
+    entropy_decay,
+    load_hyperparams,
+)
 from minitaur_env.training.single_env import qualified_env_id
 
 
@@ -93,6 +98,7 @@ class ExperimentConfig:
             raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}")
         algorithm_class(self.algo, self.backend)
         algorithm_kwargs(self.hyperparams)
+        entropy_decay(self.hyperparams, self.algo, self.backend)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         if self.trained_agent:

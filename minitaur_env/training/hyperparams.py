@@ -17,6 +17,10 @@ from minitaur_env.training.files import parse_yaml, read_yaml
 RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "policy")
 # Keys that take rl-baselines3-zoo's ``lin_<initial value>`` (linear decay to 0).
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+# ``{final: -4, start: 0.5}``: SAC's entropy target, held at ``target_entropy`` until
+# ``start`` (a fraction of n_timesteps), then decayed linearly to ``final`` at the end.
+ENTROPY_DECAY_KEY = "target_entropy_decay"
+ENTROPY_ALGOS = ("sac", "tqc", "crossq")  # the algorithms that tune an entropy coefficient
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -82,6 +86,7 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
     from stable_baselines3.common.utils import LinearSchedule
 
     kwargs = copy.deepcopy(hyperparams)  # SBX's TQC writes into policy_kwargs
+    kwargs.pop(ENTROPY_DECAY_KEY, None)  # a callback's setting (entropy_decay)
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
         if not isinstance(value, str):
@@ -97,3 +102,34 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
             ) from None
         kwargs[key] = LinearSchedule(initial, 0.0, 1.0)
     return kwargs
+
+
+def entropy_decay(
+    hyperparams: dict[str, Any], algo: str, backend: str
+) -> tuple[float, float, float] | None:
+    """``(initial, final, start)`` of a ``target_entropy_decay`` entry, or None without one.
+
+    The initial target must be a number in the entry itself: a resumed model holds the
+    decayed value, so the model cannot say where the decay began.
+    """
+    decay = hyperparams.get(ENTROPY_DECAY_KEY)
+    if decay is None:
+        return None
+    prefix = ENTROPY_DECAY_KEY
+    if algo not in ENTROPY_ALGOS or backend != "sb3":
+        raise UsageError(
+            f"{prefix}: only for --backend sb3 {', '.join(ENTROPY_ALGOS)}, not {backend} {algo}"
+        )
+    if not isinstance(decay, dict) or set(decay) - {"final", "start"} or "final" not in decay:
+        expected = "{final: <number>, start: <fraction>}"
+        raise UsageError(f"{prefix}: expected {expected}, got {decay!r}")
+    if not str(hyperparams.get("ent_coef", "auto")).startswith("auto"):
+        raise UsageError(f"{prefix}: needs ent_coef: auto (a fixed ent_coef ignores the target)")
+    initial = hyperparams.get("target_entropy")
+    final, start = decay["final"], decay.get("start", 0.0)
+    for name, value in (("target_entropy", initial), (f"{prefix}.final", final)):
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise UsageError(f"{prefix}: {name} must be a number, got {value!r}")
+    if not isinstance(start, (int, float)) or isinstance(start, bool) or not 0 <= start < 1:
+        raise UsageError(f"{prefix}.start must be a fraction in [0, 1), got {start!r}")
+    return float(initial), float(final), float(start)
