@@ -51,7 +51,7 @@ TABLES = {
         "SAC, default entry": "sac-default/seed*",
         "TQC (SBX), default entry": "tqc-sweep/seed*",
         "CrossQ, default entry": "crossq/seed*",
-        "PPO, default entry": "ppo-sweep/seed*",
+        "PPO, default entry": "ppo-default/seed*",
     },
     "ablation": {
         "SAC, previous default (constant 3e-4)": "sac-previous-default/seed*",
