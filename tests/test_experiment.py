@@ -365,7 +365,7 @@ def test_a_trained_agent_that_does_not_fit_is_one_line(tmp_path):
         pendulum(tmp_path, env="MountainCarContinuous-v0", trained_agent=str(run.zoo_model)).run()
 
 
-class RecordsLearningRate(BaseCallback):
+class RecordsSchedules(BaseCallback):
     """The actor's learning rate and the entropy target at every env step, and a Ctrl-C at
     ``interrupt_at``."""
 
@@ -385,13 +385,13 @@ class RecordsLearningRate(BaseCallback):
 
 def test_resume_continues_a_decaying_learning_rate_instead_of_restarting_it(tmp_path):
     decaying = {"hyperparams": {"learning_rate": "lin_1e-3"}, "n_timesteps": 200}
-    whole = RecordsLearningRate()
+    whole = RecordsSchedules()
     pendulum(tmp_path / "whole", **decaying, callbacks=[whole]).run()
 
-    first = RecordsLearningRate(interrupt_at=100)
+    first = RecordsSchedules(interrupt_at=100)
     interrupted = pendulum(tmp_path / "cut", **decaying, callbacks=[first]).run()
     assert interrupted.status == "interrupted" and interrupted.num_timesteps == 100
-    second = RecordsLearningRate()
+    second = RecordsSchedules()
     Experiment.resume(interrupted.run.path, verbose=0, callbacks=[second]).run()
     after = sorted(s for s in second.rates if s > 101)  # the first step's lr is set by train()
     assert after and after[-1] == 200
@@ -399,7 +399,7 @@ def test_resume_continues_a_decaying_learning_rate_instead_of_restarting_it(tmp_
     assert second.rates[after[0]] < 0.5e-3  # a restarted schedule would be back near 1e-3
 
     # -n extends the schedule to the new length: at step s of 300, 1e-3 * (1 - s / 300).
-    extended = RecordsLearningRate()
+    extended = RecordsSchedules()
     Experiment.resume(interrupted.run.path, n_timesteps=300, verbose=0, callbacks=[extended]).run()
     steps = sorted(s for s in extended.rates if s > 201)
     expected = [1e-3 * (1 - (s - 1) / 300) for s in steps]  # set after step s - 1
@@ -410,7 +410,7 @@ def test_a_decaying_entropy_target_steers_alpha_and_continues_after_a_resume(tmp
     # Rising to +50 (not falling) makes the effect visible past Adam's sign-like steps:
     # a target above the policy's entropy pushes alpha up, the control's 0 pushes it down.
     decay = {"target_entropy": 0, "target_entropy_decay": {"final": 50, "start": 0.5}}
-    whole = RecordsLearningRate()
+    whole = RecordsSchedules()
     decayed = pendulum(tmp_path / "whole", hyperparams=decay, callbacks=[whole]).run()
     assert [whole.targets[s] for s in (1, 100, 150, 200)] == [0, 0, 25, 50]
     control = pendulum(tmp_path / "control", hyperparams={"target_entropy": 0}).run()
@@ -420,12 +420,19 @@ def test_a_decaying_entropy_target_steers_alpha_and_continues_after_a_resume(tmp
 
     assert alpha(decayed) > alpha(control)
 
-    first = RecordsLearningRate(interrupt_at=120)
+    first = RecordsSchedules(interrupt_at=120)
     interrupted = pendulum(tmp_path / "cut", hyperparams=decay, callbacks=[first]).run()
-    second = RecordsLearningRate()
+    second = RecordsSchedules()
     Experiment.resume(interrupted.run.path, verbose=0, callbacks=[second]).run()
     assert min(second.targets) == 121
     assert second.targets == {s: whole.targets[s] for s in range(121, 201)}
+
+    # -n stretches the decay to the new length, from 150 (0.5 of 300) to 50 at 300; the
+    # 200-step decay would already be at 50 by step 225.
+    extended = RecordsSchedules()
+    Experiment.resume(interrupted.run.path, n_timesteps=300, verbose=0, callbacks=[extended]).run()
+    assert min(extended.targets) == 201  # from the finished run's 200-step checkpoint
+    assert [extended.targets[s] for s in (225, 300)] == [25, 50]
 
 
 @pytest.mark.parametrize(
