@@ -120,15 +120,23 @@ def iqm_with_ci(
         return np.nan, np.nan, np.nan
     if len(scores) == 1:
         return float(scores[0]), float(scores[0]), float(scores[0])
-    with warnings.catch_warnings():
-        # arch, under rliable, deprecates the RandomState that rliable hands it.
-        warnings.simplefilter("ignore", FutureWarning)
-        estimates, intervals = rly.get_interval_estimates(
-            {"runs": scores.reshape(-1, 1)},
-            lambda x: np.array([metrics.aggregate_iqm(x)]),
-            reps=reps,
-            random_state=np.random.RandomState(seed),
-        )
+    # rliable (1.2) resamples with the global np.random and ignores its random_state, so
+    # the same scores gave different intervals from one call to the next: seed the global
+    # generator for the call and give the caller its state back.
+    caller_state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        with warnings.catch_warnings():
+            # arch, under rliable, deprecates the RandomState that rliable hands it.
+            warnings.simplefilter("ignore", FutureWarning)
+            estimates, intervals = rly.get_interval_estimates(
+                {"runs": scores.reshape(-1, 1)},
+                lambda x: np.array([metrics.aggregate_iqm(x)]),
+                reps=reps,
+                random_state=np.random.RandomState(seed),
+            )
+    finally:
+        np.random.set_state(caller_state)
     return (
         float(estimates["runs"][0]),
         float(intervals["runs"][0, 0]),
