@@ -139,6 +139,22 @@ def test_wall_clock_continues_across_resumed_sessions(tmp_path):
     assert seconds.tolist() == [10.0, 20.0, 25.0, 30.0]
 
 
+def test_the_final_steps_after_the_last_logged_episode_have_a_wall_clock(tmp_path):
+    # Training ends inside an episode that no monitor logs: the final model (here at step
+    # 450, 50 steps past the last logged episode) got a NaN wall-clock, and the shipped
+    # SAC's provenance said wall_clock_min_to_model: .nan.
+    run = RunFolder(tmp_path)
+    run.monitor_dir.mkdir()
+    episodes = [(10.0, 100), (20.0, 100), (30.0, 100), (40.0, 100)]  # 1 s per 10 steps
+    (run.monitor_dir / "0.monitor.csv").write_text(
+        '#{"t_start": 0}\nr,l,t\n' + "".join(f"0,{n},{t}\n" for t, n in episodes)
+    )
+    at_final, beyond = wall_clock_at(run, np.array([450, 600]))
+    assert at_final == pytest.approx(45.0)
+    # More than one episode past the logs is not the unlogged end of this run: unknown.
+    assert np.isnan(beyond)
+
+
 def test_resume_refuses_settings_that_contradict_the_run(tmp_path):
     run = pendulum(tmp_path, n_timesteps=60).run().run
     with pytest.raises(UsageError, match="seed 3 contradicts the run's saved seed 0"):

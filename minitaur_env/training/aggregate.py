@@ -19,6 +19,10 @@ import numpy as np
 
 from minitaur_env.training.run_folder import RunFolder
 
+# The unlogged end of a run is timed at its rate over about this many last logged steps:
+# recent enough to be the final session's machine load, long enough to span evaluations.
+RATE_WINDOW_STEPS = 10_000
+
 
 @dataclasses.dataclass
 class RunCurve:
@@ -87,14 +91,28 @@ def wall_clock_at(run: RunFolder, steps: np.ndarray) -> np.ndarray:
     ends are interpolated. Each resumed session's monitor clock restarts from 0, so a
     session is counted from where the previous one's last logged episode ended: time
     spent stopped between sessions is not counted.
+
+    Episodes cut by the end of a session are never logged, so the logs end up to one
+    episode per env and session short of the steps trained: the final model's steps lie
+    past the last logged episode. Steps within that shortfall are timed at the rate of
+    the last logged steps; steps beyond it (a run that stopped earlier) are NaN.
     """
-    events = [(episode.training_time, episode.length) for episode in run.monitor_episodes()]
-    if not events:
+    episodes = run.monitor_episodes()
+    if not episodes:
         return np.full(len(steps), np.nan)
-    events.sort()
+    events = sorted((episode.training_time, episode.length) for episode in episodes)
     times = np.array([t for t, _ in events])
     done = np.cumsum([n for _, n in events])
-    return np.interp(steps, done, times, right=np.nan)
+    seconds = np.interp(steps, done, times, right=np.nan)
+    sessions = 1 + max(episode.session for episode in episodes)
+    envs = len({episode.monitor for episode in episodes})
+    unlogged = sessions * envs * max(n for _, n in events)
+    tail = (steps > done[-1]) & (steps <= done[-1] + unlogged)
+    if tail.any() and len(done) > 1:
+        since = max(0, int(np.searchsorted(done, done[-1] - RATE_WINDOW_STEPS)) - 1)
+        rate = (times[-1] - times[since]) / (done[-1] - done[since])  # seconds per step
+        seconds[tail] = times[-1] + (steps[tail] - done[-1]) * rate
+    return seconds
 
 
 def default_milestones(env_id: str) -> tuple[float, ...]:

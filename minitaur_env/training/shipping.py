@@ -212,10 +212,10 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
         "training": {
             "commands": run.command.read_text().strip().splitlines(),
             "seed": config["seed"],
-            "model": f"{model.relative_to(run.path)} of {run.path.name}",
+            "model": f"{model.relative_to(run.path)} of {run.path}",
             "model_steps": steps,
             "trained_steps": max((steps for steps, _ in run.checkpoints()), default=steps),
-            "wall_clock_min_to_model": round(minutes, 1),
+            "wall_clock_min_to_model": round(minutes, 1) if np.isfinite(minutes) else None,
             "wall_clock_note": "training time on the 2-core CPU machine, shared with other "
                                "training runs (see docs/results.md)",
         },
