@@ -252,6 +252,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._draw_episode_settings(None)
         self._physics_step_count = 0
         self._push_force = np.zeros(3)
+        self._push_scale = 1.0
 
         self._sim: BulletSim | None = BulletSim(gui=render_mode == "human")
         self._robot: Minitaur | None = None
@@ -336,6 +337,16 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._robot is None:
             raise ResetNeeded("call reset() before using the robot")
         return self._robot
+
+    @property
+    def push_scale(self) -> float:
+        """The factor on every push's force, 1 for the ``pushes`` setting as given."""
+        return self._push_scale
+
+    def set_push_scale(self, scale: float) -> None:
+        """Scale the force of the pushes drawn from now on by ``scale`` in [0, 1]: a
+        curriculum's lever. The same random numbers are drawn at every scale."""
+        self._push_scale = number("push scale", scale, 0, 1)
 
     def _live_sim(self) -> BulletSim:
         if self._sim is None:
@@ -459,7 +470,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         duration = max(1, round(pushes.duration / self.physics_time_step))
         step = self._physics_step_count
         if step >= interval and step % interval == 0:
-            self._push_force = pushes.draw(self.np_random)
+            self._push_force = pushes.draw(self.np_random) * self._push_scale
         elif step < interval or step % interval >= duration:
             self._push_force = np.zeros(3)
         if self._push_force.any():

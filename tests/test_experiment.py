@@ -451,6 +451,77 @@ def test_a_decaying_entropy_target_steers_alpha_and_continues_after_a_resume(tmp
     assert [extended.targets[s] for s in (225, 300)] == [25, 50]
 
 
+class RecordsPushScale(BaseCallback):
+    """The training envs' push scale at every env step, and a Ctrl-C at ``interrupt_at``."""
+
+    def __init__(self, interrupt_at: int | None = None) -> None:
+        super().__init__()
+        self.interrupt_at = interrupt_at
+        self.scales: dict[int, float] = {}
+
+    def _on_step(self) -> bool:
+        (scale,) = set(self.training_env.get_attr("push_scale"))
+        self.scales[self.num_timesteps] = scale
+        if self.num_timesteps == self.interrupt_at:
+            raise KeyboardInterrupt
+        return True
+
+
+def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_resume(
+    tmp_path,
+):
+    def pushed(name: str, callback: BaseCallback, **settings) -> Experiment:
+        return pendulum(
+            tmp_path / name, env="MinitaurBulletEnv-v0", n_envs=2, eval_freq=100,
+            eval_episodes=1, env_kwargs={"pushes": True, "max_episode_steps": 30},
+            hyperparams={"push_curriculum": {"start": 0.2, "full_at": 0.5}},
+            callbacks=[callback], **settings,
+        )  # fmt: skip
+
+    whole = RecordsPushScale()
+    experiment = pushed("whole", whole)
+    experiment.run()
+    expected = {s: min(0.2 + 0.8 * s / 100, 1.0) for s in whole.scales}  # full at 100 of 200
+    assert whole.scales[2] == pytest.approx(0.2, abs=0.02)
+    for step, scale in whole.scales.items():  # set when it has moved by a hundredth
+        assert scale == pytest.approx(expected[step], abs=0.02)
+    assert all(whole.scales[s] == 1.0 for s in whole.scales if s >= 102)
+    assert experiment.eval_env.get_attr("push_scale") == [1.0]  # evaluations: full force
+
+    control = RecordsPushScale()
+    pendulum(
+        tmp_path / "control", env="MinitaurBulletEnv-v0", env_kwargs={"pushes": True,
+        "max_episode_steps": 30}, callbacks=[control],
+    ).run()  # fmt: skip
+    assert set(control.scales.values()) == {1.0}
+
+    first = RecordsPushScale(interrupt_at=60)
+    interrupted = pushed("cut", first).run()
+    assert interrupted.status == "interrupted"
+    second = RecordsPushScale()
+    Experiment.resume(interrupted.run.path, verbose=0, callbacks=[second]).run()
+    resumed_at = min(second.scales)
+    assert resumed_at > 50  # from the 50-step checkpoint, not from step 0 and scale 0.2
+    assert second.scales[resumed_at] == pytest.approx(expected[resumed_at], abs=0.02)
+
+
+@pytest.mark.parametrize(
+    ("hyperparams", "env_kwargs", "message"),
+    [
+        ({"start": 0.2, "full_at": 0.5}, {}, "the env has no pushes to scale; add --env-kwargs"),
+        ({"start": 0.2}, {"pushes": True}, "expected {start: <fraction of the force>, full_at"),
+        ({"start": 2, "full_at": 0.5}, {"pushes": True}, "start must be a number in [0, 1], got 2"),
+        ({"start": 0, "full_at": 0}, {"pushes": True}, "full_at must be a number in (0, 1], got 0"),
+    ],
+)
+def test_a_push_curriculum_that_would_do_nothing_is_refused(hyperparams, env_kwargs, message):
+    with pytest.raises(UsageError, match=re.escape(message)):
+        ExperimentConfig.resolve(
+            "sac", "MinitaurBulletEnv-v0", hyperparams={"push_curriculum": hyperparams},
+            env_kwargs=env_kwargs,
+        )  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("algo", "backend", "hyperparams", "message"),
     [

@@ -205,6 +205,30 @@ def test_a_push_direction_fixes_where_the_base_goes_and_keeps_the_magnitudes():
         Pushes(direction="left")
 
 
+def test_a_push_scale_scales_the_same_draws_and_a_bad_one_is_refused():
+    def pushed(scale: float | None) -> tuple[np.ndarray, float]:
+        env = MinitaurBulletEnv(randomize_dynamics=False, pushes=True)
+        if scale is not None:
+            env.set_push_scale(scale)
+        env.reset(seed=3)
+        infos = [env.step(np.zeros(8))[4] for _ in range(135)]
+        after = infos[-1]["base_position"][:2] - infos[118]["base_position"][:2]
+        env.close()
+        return infos[121]["push_force"], float(np.linalg.norm(after))
+
+    (full, moved_full), (half, moved_half), (none, moved_none) = map(pushed, (None, 0.5, 0.0))
+    assert np.linalg.norm(full) >= 130
+    np.testing.assert_allclose(half, 0.5 * full, rtol=1e-12)  # the same direction and draw
+    assert not none.any()
+    assert moved_full > moved_half > moved_none  # and the base feels the difference
+    env = MinitaurBulletEnv(pushes=True)
+    assert env.push_scale == 1.0
+    with pytest.raises(ValueError, match=r"push scale must be in \[0, 1\], got 1\.5"):
+        env.set_push_scale(1.5)
+    assert env.push_scale == 1.0
+    env.close()
+
+
 # -- IMU --------------------------------------------------------------------------------
 def test_euler_conversions_match_pybullet():
     rng = np.random.default_rng(0)

@@ -1,6 +1,6 @@
 """Callbacks SB3 lacks: checked checkpoints, a divergence guard, evaluations that continue
-after a resume, VecNormalize saved with the best model, a policy-video recorder and a
-decaying entropy target."""
+after a resume, VecNormalize saved with the best model, a policy-video recorder, a
+decaying entropy target and growing pushes."""
 
 from __future__ import annotations
 
@@ -16,7 +16,9 @@ from stable_baselines3.common.vec_env import unwrap_vec_normalize
 
 from minitaur_env.training import TrainingDiverged
 from minitaur_env.training.checkpoints import save_checked_checkpoint
+from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_env
+from minitaur_env.training.hyperparams import entropy_decay, push_curriculum
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import embed_statistics, save_normalizer
 from minitaur_env.training.video import record_video
@@ -66,6 +68,57 @@ class TargetEntropyDecay(BaseCallback):
     def _apply(self) -> None:
         self.model.target_entropy = self.value(self.model.num_timesteps)
         self.logger.record("train/target_entropy", self.model.target_entropy)
+
+
+class PushCurriculum(BaseCallback):
+    """Pushes that grow with training: the training envs' push forces are scaled by
+    ``start`` at step 0, rising linearly to full force at step ``full_at``.
+
+    Only the training envs are scaled; evaluations push at full force, so they measure
+    the task itself. Set from the model's own step count (when it has moved by a
+    hundredth), so a resumed run continues where it stopped.
+    """
+
+    STEP = 0.01  # the smallest change worth a call to every env worker
+
+    def __init__(self, start: float, full_at: int) -> None:
+        super().__init__()
+        self.start, self.full_at = start, max(full_at, 1)
+        self.applied: float | None = None
+
+    def value(self, step: int) -> float:
+        return self.start + (1.0 - self.start) * min(step / self.full_at, 1.0)
+
+    def _init_callback(self) -> None:
+        self._apply()
+
+    def _on_step(self) -> bool:
+        self._apply()
+        return True
+
+    def _apply(self) -> None:
+        scale = self.value(self.model.num_timesteps)
+        if self.applied is not None and abs(scale - self.applied) < self.STEP and scale < 1:
+            return
+        if scale != self.applied:
+            self.training_env.env_method("set_push_scale", scale)
+            self.applied = scale
+        self.logger.record("train/push_scale", scale)
+
+
+def schedules(config: ExperimentConfig) -> list[BaseCallback]:
+    """The callbacks that change a setting as training goes, from the config's entry."""
+    callbacks: list[BaseCallback] = []
+    steps = config.n_timesteps
+    decay = entropy_decay(config.hyperparams, config.algo, config.backend)
+    if decay is not None:
+        initial, final, start = decay
+        callbacks.append(TargetEntropyDecay(initial, final, int(start * steps), steps))
+    curriculum = push_curriculum(config.hyperparams, config.env_pushes)
+    if curriculum is not None:
+        start, full_at = curriculum
+        callbacks.append(PushCurriculum(start, int(full_at * steps)))
+    return callbacks
 
 
 class CheckpointEveryCallback(BaseCallback):

@@ -6,6 +6,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
+
 from minitaur_env.training import UsageError
 from minitaur_env.training.algorithms import algorithm_class, infer_algo
 from minitaur_env.training.envs import VEC_ENVS
@@ -14,6 +16,7 @@ from minitaur_env.training.hyperparams import (
     algorithm_kwargs,
     entropy_decay,
     load_hyperparams,
+    push_curriculum,
 )
 from minitaur_env.training.single_env import qualified_env_id
 
@@ -84,6 +87,11 @@ class ExperimentConfig:
         config.validate()
         return config
 
+    @property
+    def env_pushes(self) -> Any:
+        """The env's ``pushes`` setting: the registered id's, unless ``env_kwargs`` sets it."""
+        return {**gym.spec(self.env).kwargs, **self.env_kwargs}.get("pushes")
+
     def validate(self) -> None:
         """Raise a UsageError for what would only fail later, inside training."""
         for name in ("eval_freq", "save_freq", "video_freq"):
@@ -101,6 +109,7 @@ class ExperimentConfig:
         entropy_decay(self.hyperparams, self.algo, self.backend)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
+        push_curriculum(self.hyperparams, self.env_pushes)
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
 

@@ -41,7 +41,7 @@ from minitaur_env.training.checkpoints import (
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_eval_env, make_training_env
 from minitaur_env.training.files import ensure_writable, exclusive
-from minitaur_env.training.hyperparams import algorithm_kwargs, entropy_decay
+from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.policies import resolve_policy
 from minitaur_env.training.results import RunResult
 from minitaur_env.training.run_folder import RunFolder
@@ -251,18 +251,14 @@ class Experiment:
             PromoteBestModel,
             PublishEvaluations,
             ResumableEvalCallback,
-            TargetEntropyDecay,
             VideoRecorderCallback,
+            schedules,
         )
         from minitaur_env.training.progress import TrainingProgress
 
         config, run = self.config, self.run_folder
         callbacks: list[BaseCallback] = [DivergenceGuardCallback()]
-        decay = entropy_decay(config.hyperparams, config.algo, config.backend)
-        if decay is not None:
-            initial, final, start = decay
-            start_step = int(start * config.n_timesteps)
-            callbacks.append(TargetEntropyDecay(initial, final, start_step, config.n_timesteps))
+        callbacks += schedules(config)
         evaluation = None
         if config.eval_freq:
             # SB3 writes both in place; they are staged and then moved over atomically.

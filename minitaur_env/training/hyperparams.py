@@ -21,6 +21,11 @@ SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 # ``start`` (a fraction of n_timesteps), then decayed linearly to ``final`` at the end.
 ENTROPY_DECAY_KEY = "target_entropy_decay"
 ENTROPY_ALGOS = ("sac", "tqc", "crossq")  # the algorithms that tune an entropy coefficient
+# ``{start: 0.2, full_at: 0.5}``: the training envs push at ``start`` times the env's push
+# force at step 0, growing linearly to the full force at ``full_at`` (a fraction of
+# n_timesteps). Evaluations always push at full force.
+PUSH_CURRICULUM_KEY = "push_curriculum"
+CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY)  # read by callbacks, not the algorithm
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -86,7 +91,8 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
     from stable_baselines3.common.utils import LinearSchedule
 
     kwargs = copy.deepcopy(hyperparams)  # SBX's TQC writes into policy_kwargs
-    kwargs.pop(ENTROPY_DECAY_KEY, None)  # a callback's setting (entropy_decay)
+    for key in CALLBACK_KEYS:
+        kwargs.pop(key, None)
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
         if not isinstance(value, str):
@@ -133,3 +139,27 @@ def entropy_decay(
     if not isinstance(start, (int, float)) or isinstance(start, bool) or not 0 <= start < 1:
         raise UsageError(f"{prefix}.start must be a fraction in [0, 1), got {start!r}")
     return float(initial), float(final), float(start)
+
+
+def push_curriculum(hyperparams: dict[str, Any], env_pushes: Any) -> tuple[float, float] | None:
+    """``(start, full_at)`` of a ``push_curriculum`` entry, or None without one.
+
+    ``env_pushes`` is the env's ``pushes`` setting: a curriculum without pushes to scale
+    would do nothing, so it is refused.
+    """
+    curriculum = hyperparams.get(PUSH_CURRICULUM_KEY)
+    if curriculum is None:
+        return None
+    prefix = PUSH_CURRICULUM_KEY
+    expected = "{start: <fraction of the force>, full_at: <fraction of n_timesteps>}"
+    if not isinstance(curriculum, dict) or set(curriculum) != {"start", "full_at"}:
+        raise UsageError(f"{prefix}: expected {expected}, got {curriculum!r}")
+    start, full_at = curriculum["start"], curriculum["full_at"]
+    for name, value, low_open in (("start", start, False), ("full_at", full_at, True)):
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not number or not (0 < value <= 1 if low_open else 0 <= value <= 1):
+            interval = "(0, 1]" if low_open else "[0, 1]"
+            raise UsageError(f"{prefix}.{name} must be a number in {interval}, got {value!r}")
+    if env_pushes is None or env_pushes is False:
+        raise UsageError(f"{prefix}: the env has no pushes to scale; add --env-kwargs pushes=true")
+    return float(start), float(full_at)
