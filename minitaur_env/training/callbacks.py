@@ -98,12 +98,11 @@ class PushCurriculum(BaseCallback):
 
     def _apply(self) -> None:
         scale = self.value(self.model.num_timesteps)
-        if self.applied is not None and abs(scale - self.applied) < self.STEP and scale < 1:
-            return
-        if scale != self.applied:
+        applied = self.applied
+        if applied is None or abs(scale - applied) >= self.STEP or scale == 1.0 != applied:
             self.training_env.env_method("set_push_scale", scale)
             self.applied = scale
-        self.logger.record("train/push_scale", scale)
+        self.logger.record("train/push_scale", self.applied)
 
 
 def schedules(config: ExperimentConfig) -> list[BaseCallback]:
