@@ -41,7 +41,22 @@ class DivergenceGuardCallback(BaseCallback):
         return True
 
 
-class TargetEntropyDecay(BaseCallback):
+class _StepSchedule(BaseCallback):
+    """A setting applied from the model's own step count before training and after
+    every step, so a resumed run continues where it stopped."""
+
+    def _init_callback(self) -> None:
+        self._apply()
+
+    def _on_step(self) -> bool:
+        self._apply()
+        return True
+
+    def _apply(self) -> None:
+        raise NotImplementedError
+
+
+class TargetEntropyDecay(_StepSchedule):
     """SAC's entropy target, held at ``initial`` until step ``start``, then decayed
     linearly to ``final`` at step ``end``.
 
@@ -58,19 +73,12 @@ class TargetEntropyDecay(BaseCallback):
         fraction = min(max((step - self.start) / (self.end - self.start), 0.0), 1.0)
         return self.initial + fraction * (self.final - self.initial)
 
-    def _init_callback(self) -> None:
-        self._apply()
-
-    def _on_step(self) -> bool:
-        self._apply()
-        return True
-
     def _apply(self) -> None:
         self.model.target_entropy = self.value(self.model.num_timesteps)
         self.logger.record("train/target_entropy", self.model.target_entropy)
 
 
-class PushCurriculum(BaseCallback):
+class PushCurriculum(_StepSchedule):
     """Pushes that grow with training: the training envs' push forces are scaled by
     ``start`` at step 0, rising linearly to full force at step ``full_at``.
 
@@ -88,13 +96,6 @@ class PushCurriculum(BaseCallback):
 
     def value(self, step: int) -> float:
         return self.start + (1.0 - self.start) * min(step / self.full_at, 1.0)
-
-    def _init_callback(self) -> None:
-        self._apply()
-
-    def _on_step(self) -> bool:
-        self._apply()
-        return True
 
     def _apply(self) -> None:
         scale = self.value(self.model.num_timesteps)
