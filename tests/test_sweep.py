@@ -108,11 +108,17 @@ def test_a_search_repeats_each_configuration_over_the_seeds_and_asha_stops_on_st
 
     (tmp_path / "space.yml").write_text("learning_rate: {loguniform: [1.0e-4, 1.0e-3]}\n")
     space = load_search_space(tmp_path / "space.yml")
-    repeated = Sweep(base(), seeds=[0, 1, 2], search=space, trials=2)._tuner(resume=False)
+    # Ray writes the Tuner's state into its storage on construction: not into the repo.
+    storage = str(tmp_path / "sweeps")
+    repeated = Sweep(base(), seeds=[0, 1, 2], search=space, trials=2, storage=storage)._tuner(
+        resume=False
+    )
     config = repeated._local_tuner._tune_config
     assert isinstance(config.search_alg, Repeater) and config.search_alg.repeat == 3
     assert config.num_samples == 6  # 2 configurations x 3 seeds
-    asha = Sweep(base(), seeds=[0], search=space, scheduler="asha")._tuner(resume=False)
+    asha = Sweep(base(), seeds=[0], search=space, scheduler="asha", storage=storage)._tuner(
+        resume=False
+    )
     scheduler = asha._local_tuner._tune_config.scheduler
     assert isinstance(scheduler, ASHAScheduler)
     assert scheduler._time_attr == "timesteps" and scheduler._max_t == 400
