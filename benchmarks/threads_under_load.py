@@ -25,18 +25,18 @@ import sys, time, torch, gymnasium as gym
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 import minitaur_env
-threads, steps, warmup = (int(value) for value in sys.argv[1:4])
+threads, steps, warmup, untimed = (int(value) for value in sys.argv[1:5])
 if threads:
     torch.set_num_threads(threads)
 class Timer(BaseCallback):
     started = 0.0
     def _on_step(self):
-        if self.num_timesteps == warmup + 200:  # the first updates are slower: not timed
+        if self.num_timesteps == warmup + untimed:  # the first updates are slower: not timed
             Timer.started = time.perf_counter()
         return True
 model = SAC("MlpPolicy", gym.make("MinitaurBulletEnv-v0"), learning_starts=warmup,
             train_freq=8, gradient_steps=8, seed=0, device="cpu")
-model.learn(warmup + 200 + steps, callback=Timer())
+model.learn(warmup + untimed + steps, callback=Timer())
 print(steps / (time.perf_counter() - Timer.started), torch.get_num_threads())
 """
 
@@ -46,11 +46,11 @@ def burn() -> None:
         pass
 
 
-def measure(threads: int, steps: int, warmup: int) -> tuple[float, int]:
+def measure(threads: int, steps: int, warmup: int, untimed: int = 200) -> tuple[float, int]:
     # torch's default is what a user gets with nothing set: a caller's OMP_NUM_THREADS=1
     # (as our own runs set it) would silently make both variants one thread.
     env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
-    command = [sys.executable, "-c", MEASURE, str(threads), str(steps), str(warmup)]
+    command = [sys.executable, "-c", MEASURE, *(str(n) for n in (threads, steps, warmup, untimed))]
     done = subprocess.run(command, capture_output=True, text=True, check=True, env=env)
     rate, used = done.stdout.split()[-2:]
     return float(rate), int(used)

@@ -13,7 +13,7 @@ DummyVecEnv, torch's default threads) against ``GroupedSubprocVecEnv`` with one 
 thread (what ``train.py`` does by default for several envs).
 
     python benchmarks/training_speed.py [--steps 2000] [--warmup 300] [--untimed 200]
-                                        [--ppo-steps 16384]
+                                        [--ppo-steps 16384] [--ppo-rollout 256]
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
 import minitaur_env  # noqa: F401
+from minitaur_env.training.hyperparams import RUN_KEYS, load_hyperparams
 
 
 class _LearningPhaseTimer(BaseCallback):
@@ -73,27 +74,31 @@ def measure(
     return (model.num_timesteps - timer.steps_at_start) / elapsed
 
 
-def measure_ppo(steps: int, vec_env: str, default_threads: int) -> float:
-    """Env steps/s of PPO with the tuned Minitaur config (8 envs), rollouts and updates."""
+def measure_ppo(steps: int, vec_env: str, default_threads: int, rollout: int = 0) -> float:
+    """Env steps/s of PPO with the tuned Minitaur config (8 envs), rollouts and updates;
+    ``rollout`` > 0 replaces the config's steps per env and rollout (a smoke run's size)."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
     from minitaur_env.training.envs import make_training_env
-    from minitaur_env.training.hyperparams import RUN_KEYS, load_hyperparams
 
     torch.set_num_threads(1 if vec_env == "grouped" else default_threads)  # as train.py does
     hyperparams = load_hyperparams("ppo", "MinitaurBulletEnv-v0")
     run = {key: hyperparams.pop(key) for key in RUN_KEYS if key in hyperparams}
+    if rollout:
+        hyperparams["n_steps"] = rollout
+        hyperparams["batch_size"] = min(hyperparams["batch_size"], rollout * run["n_envs"])
     env = make_training_env("MinitaurBulletEnv-v0", n_envs=run["n_envs"], seed=0, vec_env=vec_env)
     env = VecNormalize(env)
     model = PPO(run["policy"], env, seed=0, device="cpu", **hyperparams)
-    rollout = hyperparams["n_steps"] * run["n_envs"]
-    model.learn(rollout)  # first rollout and update: start-up, not timed
+    steps_per_rollout = hyperparams["n_steps"] * run["n_envs"]
+    model.learn(steps_per_rollout)  # first rollout and update: start-up, not timed
     start = time.perf_counter()
-    model.learn(max(steps // rollout, 1) * rollout, reset_num_timesteps=False)
+    timed = max(steps // steps_per_rollout, 1) * steps_per_rollout
+    model.learn(timed, reset_num_timesteps=False)
     elapsed = time.perf_counter() - start
     env.close()
-    return (model.num_timesteps - rollout) / elapsed
+    return (model.num_timesteps - steps_per_rollout) / elapsed
 
 
 def torch_default_threads() -> int:
@@ -120,6 +125,9 @@ def main() -> None:
         "--untimed", type=int, default=200, help="learning steps before timing (JIT compiles)"
     )
     parser.add_argument("--ppo-steps", type=int, default=16384, help="timed PPO env steps")
+    parser.add_argument(
+        "--ppo-rollout", type=int, default=0, help="PPO steps per env and rollout; 0: the config's"
+    )
     args = parser.parse_args()
     default_threads = torch_default_threads()
 
@@ -136,10 +144,11 @@ def main() -> None:
     for name, settings in variants.items():
         rate = measure(args.steps, args.warmup, untimed=args.untimed, **settings)
         print(f"{name}: {rate:.1f} env steps/s; ratio {rate / baseline:.2f}x the defaults")
-    dummy = measure_ppo(args.ppo_steps, "dummy", default_threads)
-    grouped = measure_ppo(args.ppo_steps, "grouped", default_threads)
+    dummy = measure_ppo(args.ppo_steps, "dummy", default_threads, args.ppo_rollout)
+    grouped = measure_ppo(args.ppo_steps, "grouped", default_threads, args.ppo_rollout)
+    rollout = args.ppo_rollout or load_hyperparams("ppo", "MinitaurBulletEnv-v0")["n_steps"]
     print(
-        f"PPO, tuned config (8 envs, 256-step rollouts, 10 epochs): DummyVecEnv {dummy:.0f} "
+        f"PPO, tuned config (8 envs, {rollout}-step rollouts, 10 epochs): DummyVecEnv {dummy:.0f} "
         f"env steps/s; GroupedSubprocVecEnv (2 processes, 1 torch thread) {grouped:.0f}; "
         f"ratio {grouped / dummy:.2f}x"
     )

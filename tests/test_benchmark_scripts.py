@@ -112,7 +112,7 @@ def test_threads_under_load_gives_the_default_variant_torchs_real_default(monkey
     benchmark = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(benchmark)
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
-    rate, threads = benchmark.measure(0, steps=16, warmup=64)
+    rate, threads = benchmark.measure(0, steps=16, warmup=64, untimed=8)
     assert rate > 0 and threads == int(default)
 
 
@@ -125,7 +125,7 @@ def test_training_speed_times_every_variant_and_its_baseline_at_torchs_default(t
     ).stdout.strip()  # fmt: skip
     result = subprocess.run(
         [sys.executable, str(REPO / "benchmarks/training_speed.py"), "--steps", "16",
-         "--warmup", "32", "--untimed", "8", "--ppo-steps", "16"],
+         "--warmup", "32", "--untimed", "8", "--ppo-steps", "16", "--ppo-rollout", "8"],
         capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"},
         timeout=900, cwd=tmp_path,
     )  # fmt: skip
@@ -142,6 +142,7 @@ def test_training_speed_times_every_variant_and_its_baseline_at_torchs_default(t
         result.stdout,
     )
     assert dummy > 0 and ratio == pytest.approx(grouped / dummy, abs=0.01 + 0.05 * ratio)
+    assert "(8 envs, 8-step rollouts, 10 epochs)" in result.stdout  # --ppo-rollout took
     # 1M transitions of 28 floats (observation and next observation), 8 actions, and
     # reward, done and timeout as float32: 260 MB.
     (mib,) = figure(rf"replay buffer of 1M transitions .*: {NUMBER} MiB", result.stdout)
