@@ -14,15 +14,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from minitaur_env.training import OneLineErrorParser, missing_dependency
-
-try:
-    from minitaur_env.training import commands
-    from minitaur_env.training.cli import add_experiment_arguments, given_flags, suppress_defaults
-    from minitaur_env.training.envs import VEC_ENVS
-    from minitaur_env.training.progress import PROGRESS_MODES
-except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
-    sys.exit(missing_dependency("train.py", error))
+from minitaur_env.training import PROGRESS_MODES, VEC_ENVS, OneLineErrorParser, commands
+from minitaur_env.training.cli import add_experiment_arguments, given_flags, suppress_defaults
 
 
 def build_parser(without_defaults: bool = False) -> argparse.ArgumentParser:

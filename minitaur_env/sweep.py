@@ -19,11 +19,7 @@ import argparse
 import sys
 
 from minitaur_env.training import OneLineErrorParser, UsageError, commands, missing_dependency
-
-try:
-    from minitaur_env.training.cli import add_experiment_arguments
-except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
-    sys.exit(missing_dependency("python -m minitaur_env.sweep", error))
+from minitaur_env.training.cli import add_experiment_arguments
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -72,8 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return commands.sweep(args, argv)
     except ModuleNotFoundError as error:
-        if error.name not in SWEEP_MODULES:
-            raise
+        if error.name not in SWEEP_MODULES:  # the env-only install: no SB3, torch, ...
+            print(missing_dependency("python -m minitaur_env.sweep", error), file=sys.stderr)
+            return 1
         print(
             f"sweep: error: {error.name} is not installed; sweeps need the ray extra: "
             "pip install 'minitaur-env[ray]'",

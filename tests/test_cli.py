@@ -84,3 +84,29 @@ def test_training_uses_one_torch_thread_unless_told(tmp_path, monkeypatch):
         assert torch.get_num_threads() == 2  # negative control: the flag decides
     finally:
         torch.set_num_threads(before)
+
+
+def _with_torch_hidden(script: str, *args: str) -> subprocess.CompletedProcess:
+    hide = f"import sys, runpy\nsys.modules['torch'] = None\nsys.argv = {[script, *args]!r}\n"
+    run = hide + f"runpy.run_path({script!r}, run_name='__main__')"
+    return subprocess.run([sys.executable, "-c", run], capture_output=True, text=True,
+                          timeout=120, cwd=train.__file__.rsplit("/", 1)[0])  # fmt: skip
+
+
+def test_flags_are_parsed_before_torch_is_imported():
+    # --help and a typo answer at once (torch and SB3 take seconds to import), and an
+    # install without torch says what to install in one line instead of a traceback.
+    for script in ("train.py", "minitaur_env/sweep.py"):
+        shown = _with_torch_hidden(script, "--help")
+        assert shown.returncode == 0 and "--algo" in shown.stdout, shown.stderr
+        typo = _with_torch_hidden(script, "--algo", "dqn")
+        assert typo.returncode == 2 and "invalid choice: 'dqn'" in typo.stderr, typo.stderr
+    trained = _with_torch_hidden("train.py", "-n", "10")
+    assert trained.returncode == 1
+    assert (
+        trained.stderr.strip()
+        .splitlines()[-1]
+        .startswith(
+            "train.py: error: torch is not installed; training and evaluation need the train extra"
+        )
+    )

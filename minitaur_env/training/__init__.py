@@ -7,9 +7,14 @@ call the same API.
 import argparse
 from typing import NoReturn
 
-# The algorithms train.py offers (``algorithms.ALGORITHMS`` maps them to classes); named
-# here so that evaluate.py parses its flags without importing torch.
+# The choices the scripts' flags offer, named here so that the scripts parse their flags
+# (and answer --help or a typo) without importing torch. ``algorithms.ALGORITHMS`` maps
+# the names to classes; ``envs`` and ``progress`` act on the other two.
 ALGORITHM_NAMES = ("sac", "td3", "ppo", "a2c", "tqc", "crossq")
+BACKENDS = ("sb3", "sbx")
+# "auto": several envs grouped over the CPU cores, a single env in the calling process.
+VEC_ENVS = ("auto", "dummy", "grouped")
+PROGRESS_MODES = ("auto", "bar", "lines", "none")
 DEFAULT_ENV = "MinitaurBulletEnv-v0"
 
 
@@ -50,7 +55,10 @@ _API = {
 }
 __all__ = [
     "ALGORITHM_NAMES",
+    "BACKENDS",
     "DEFAULT_ENV",
+    "PROGRESS_MODES",
+    "VEC_ENVS",
     "env_name",
     "OneLineErrorParser",
     "TrainingDiverged",

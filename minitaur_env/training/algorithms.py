@@ -11,14 +11,13 @@ from typing import Any
 from stable_baselines3 import A2C, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from minitaur_env.training import ALGORITHM_NAMES, UsageError
+from minitaur_env.training import ALGORITHM_NAMES, BACKENDS, UsageError
 
 try:
     from sb3_contrib import TQC, CrossQ
 except ImportError:  # sb3-contrib is a dependency, but keep SB3's own algorithms usable
     TQC = CrossQ = None
 
-BACKENDS = ("sb3", "sbx")
 # The JAX implementations of the same algorithms by SB3's maintainers (pip install sbx-rl).
 SBX_ALGORITHMS = ("sac", "td3", "ppo", "tqc", "crossq")
 

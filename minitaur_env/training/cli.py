@@ -6,14 +6,13 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
-from minitaur_env.training import DEFAULT_ENV, UsageError
-from minitaur_env.training.algorithms import ALGORITHMS, BACKENDS
+from minitaur_env.training import ALGORITHM_NAMES, BACKENDS, DEFAULT_ENV, UsageError
 
 
 def add_experiment_arguments(parser: argparse.ArgumentParser) -> None:
     """The flags that define what is trained: shared by train.py and the sweep."""
     add = parser.add_argument
-    add("--algo", default="sac", choices=list(ALGORITHMS), help="RL algorithm (default: sac)")
+    add("--algo", default="sac", choices=list(ALGORITHM_NAMES), help="RL algorithm (default: sac)")
     add(
         "--backend",
         default="sb3",

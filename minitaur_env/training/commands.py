@@ -21,8 +21,12 @@ from minitaur_env.training import DEFAULT_ENV, UsageError, env_name, missing_dep
 
 def train(args: argparse.Namespace, argv: list[str], given: set[str]) -> int:
     """Create or resume the run the flags describe, run it, and return the exit code."""
-    from minitaur_env.training.cli import config_from_args, resume_overrides
-    from minitaur_env.training.experiment import Experiment
+    try:
+        from minitaur_env.training.cli import config_from_args, resume_overrides
+        from minitaur_env.training.experiment import Experiment
+    except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
+        print(missing_dependency("train.py", error), file=sys.stderr)
+        return 1
 
     options = dict(
         verbose=args.verbose,

@@ -8,9 +8,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from minitaur_env.training import UsageError
+from minitaur_env.training import VEC_ENVS, UsageError
 from minitaur_env.training.algorithms import algorithm_class, infer_algo
-from minitaur_env.training.envs import VEC_ENVS
 from minitaur_env.training.hyperparams import (
     RUN_KEYS,
     algorithm_kwargs,

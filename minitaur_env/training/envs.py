@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import (
     VecNormalize,
 )
 
-from minitaur_env.training import TrainingDiverged, UsageError
+from minitaur_env.training import VEC_ENVS, TrainingDiverged, UsageError
 from minitaur_env.training.single_env import make_env, qualified_env_id
 from minitaur_env.training.vec_env import GroupedSubprocVecEnv, available_cores
 
@@ -24,8 +24,6 @@ __all__ = [
     "qualified_env_id",
 ]
 
-# "auto": several envs grouped over the CPU cores, a single env in the calling process.
-VEC_ENVS = ("auto", "dummy", "grouped")
 VEC_ENV_CLASSES = {"dummy": DummyVecEnv, "grouped": GroupedSubprocVecEnv}
 
 

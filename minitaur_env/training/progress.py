@@ -11,7 +11,7 @@ from typing import IO
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
-PROGRESS_MODES = ("auto", "bar", "lines", "none")
+from minitaur_env.training import PROGRESS_MODES
 
 
 def resolve_progress(mode: str, stream: IO[str] | None = None) -> str:
