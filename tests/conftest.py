@@ -1,8 +1,10 @@
 from __future__ import annotations
 
+import getpass
 import os
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,12 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE = Path(__file__).parent / "data" / "minitaur_v0_reference.npz"
+
+# SBX compiles each algorithm's JAX update anew in every process (10-20 s); the suite
+# starts dozens of such processes, and they inherit one compilation cache from here.
+JAX_CACHE = Path(tempfile.gettempdir()) / f"minitaur-env-tests-jax-cache-{getpass.getuser()}"
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(JAX_CACHE))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 
 @pytest.fixture(scope="session")

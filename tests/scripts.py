@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import io
 import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +36,27 @@ def run_script(
         timeout=timeout,
         env=env,
     )
+
+
+def run_main(
+    main: Callable[[list[str]], int], *args: str, cwd: Path
+) -> subprocess.CompletedProcess[str]:
+    """A script's ``main(argv)`` in this process, with its exit code, stdout and stderr as
+    ``run_script`` gives them: for the many small cases of one script (its user errors),
+    without the seconds each new interpreter spends importing torch. An exception that
+    escapes ``main`` fails the test, as a traceback would fail a one-line check."""
+    stdout, stderr = io.StringIO(), io.StringIO()
+    previous = Path.cwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+            try:
+                code = main(list(args))
+            except SystemExit as exit:  # argparse's errors
+                code = exit.code if isinstance(exit.code, int) else 1
+    finally:
+        os.chdir(previous)
+    return subprocess.CompletedProcess(["main", *args], code, stdout.getvalue(), stderr.getvalue())
 
 
 def start_script(

@@ -13,8 +13,9 @@ import pytest
 import yaml
 from stable_baselines3 import PPO
 
+import evaluate
 from minitaur_env.training.video import read_video
-from tests.scripts import TINY, error_lines, needs, run_script
+from tests.scripts import TINY, error_lines, needs, run_main, run_script
 
 SHORT = ["--env-kwargs", "max_episode_steps=30"]
 
@@ -247,13 +248,20 @@ def _make_cartpole_model(path):
         (["-f", "empty-logs"], "no trained model found under empty-logs", 2),
     ],
 )
-def test_user_errors_give_one_clear_line(workdir, best_model, tmp_path, args, message, code):
+def test_user_errors_give_one_clear_line(
+    workdir, best_model, tmp_path, monkeypatch, args, message, code
+):
     (tmp_path / "corrupt.zip").write_bytes(b"this is not a zip file")
     (tmp_path / "a-file").write_text("")
     _make_cartpole_model(tmp_path / "cartpole.zip")
-    args = [a.replace("{best}", str(best_model)) for a in args]
+    args = [*(a.replace("{best}", str(best_model)) for a in args), "--episodes", "1", *SHORT]
     before = sorted(p.name for p in tmp_path.rglob("*"))
-    result = run_script("evaluate.py", *args, "--episodes", "1", *SHORT, cwd=tmp_path)
+    # Two cases run as a user runs the script; the others through its main() in this process.
+    if "corrupt.zip" in args or "NoSuchEnv-v1" in args:
+        result = run_script("evaluate.py", *args, cwd=tmp_path)
+    else:
+        monkeypatch.delenv("DISPLAY", raising=False)  # as run_script does
+        result = run_main(evaluate.main, *args, cwd=tmp_path)
     assert result.returncode == code, result.stdout + result.stderr
     lines = error_lines(result)
     assert len(lines) == 1, result.stderr
