@@ -13,11 +13,14 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE = Path(__file__).parent / "data" / "minitaur_v0_reference.npz"
 
-# SBX compiles each algorithm's JAX update anew in every process (10-20 s); the suite
-# starts dozens of such processes, and they inherit one compilation cache from here.
-JAX_CACHE = Path(tempfile.gettempdir()) / f"minitaur-env-tests-jax-cache-{getpass.getuser()}"
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(JAX_CACHE))
+# Scratch shared by the suite's processes, which inherit these variables: SBX compiles
+# each algorithm's JAX update anew in every process (10-20 s), so they share one
+# compilation cache; SB3's learn() without a logger folder makes an empty
+# /tmp/SB3-<timestamp> per model, so they share one folder instead of a hundred.
+SCRATCH = Path(tempfile.gettempdir()) / f"minitaur-env-tests-{getpass.getuser()}"
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(SCRATCH / "jax-cache"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+os.environ.setdefault("SB3_LOGDIR", str(SCRATCH / "sb3-logs"))
 
 
 @pytest.fixture(scope="session")
