@@ -68,7 +68,8 @@ def test_tutorial_notebook_runs_on_a_tiny_budget(notebook, tmp_path, monkeypatch
     assert all(not cell.get("outputs") for cell in document.cells if cell.cell_type == "code"), (
         "commit notebooks without outputs: the site shows the code, the suite runs it"
     )
-    monkeypatch.setenv("TUTORIAL_STEPS", "1024")
+    # SAC's tiny budget is half of PPO's: its 8 updates per 8 steps dominate the test.
+    monkeypatch.setenv("TUTORIAL_STEPS", "512" if notebook.stem == "sac_minitaur" else "1024")
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     client = nbclient.NotebookClient(
         document, timeout=600, kernel_name="python3", resources={"metadata": {"path": tmp_path}}

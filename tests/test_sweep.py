@@ -42,10 +42,27 @@ def base(n_timesteps: int = 400) -> ExperimentConfig:
     )  # fmt: skip
 
 
-def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def caller_ray():
+    """One Ray for this module's in-process sweeps, started as a notebook user starts it:
+    each Sweep.run uses it and leaves it running (and the module starts Ray once)."""
+    ray = needs("ray")
+    os.environ.setdefault("RAY_worker_niceness", "0")  # as Sweep.run starts its own
+    ray.init(include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(
+    tmp_path, capsys, caller_ray
+):
     command = "python -m minitaur_env.sweep --seeds 2"
     sweep = Sweep(base(), storage=str(tmp_path), name="seeds", seeds=[0, 1], command=command)
     assert sweep.run() == []
+    assert caller_ray.is_initialized()  # the caller's Ray, left running
+    elsewhere = Sweep(base(), storage=str(tmp_path), name="x", address="127.0.0.1:1")
+    with pytest.raises(UsageError, match="already connected to Ray"):
+        elsewhere.run()
     shown = [line for line in capsys.readouterr().out.splitlines() if "  eval " in line]
     for seed in (0, 1):  # one line per evaluation of each trial, as train.py prints
         steps = [line.split("  ")[1] for line in shown if f"(seed {seed})" in line]
@@ -145,7 +162,7 @@ def test_default_milestones_follow_the_env(env_id, milestones):
     assert default_milestones(env_id) == milestones
 
 
-def test_a_failing_trial_is_one_line_and_the_others_finish(tmp_path):
+def test_a_failing_trial_is_one_line_and_the_others_finish(tmp_path, caller_ray):
     space = tmp_path / "space.yml"
     space.write_text(
         'policy_kwargs: {choice: ["{net_arch: [32]}", "{activation_fn: relu}"]}\n'
@@ -201,7 +218,8 @@ def sweep_command(*args: str) -> list[str]:
 
 
 def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
-    args = [*SWEEP_ARGS, "-n", "2000", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
+    # Cut at the 500-step checkpoint, with 1000 steps left so the cut lands before the end.
+    args = [*SWEEP_ARGS, "-n", "1500", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(
         sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -222,7 +240,7 @@ def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
     )  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr
     rows = summarize(tmp_path / "cut")
-    assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 2000
+    assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 1500
     assert list(tmp_path.glob("cut/runs/*/sac/*/progress-resumed-at-*.csv"))  # not restarted
     commands = [f.read_text().splitlines() for f in tmp_path.glob("cut/runs/*/sac/*/command.txt")]
     assert len(commands) == 2

@@ -174,15 +174,24 @@ class Sweep:
         # 2.5 min instead of 5 s. Trials are the work; run them at normal priority.
         os.environ.setdefault("RAY_worker_niceness", "0")
         quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
-        if self.address:
+        # A Ray the caller already started (a notebook's ray.init with its own resources)
+        # is used and left running; one started here is shut down here.
+        started_here = not ray.is_initialized()
+        if not started_here and self.address:
+            raise UsageError(
+                f"--address {self.address}: this process is already connected to Ray; "
+                "leave out the address, or call ray.shutdown() first"
+            )
+        if started_here and self.address:
             ray.init(address=self.address, **quiet)
-        else:
+        elif started_here:
             ray.init(include_dashboard=False, **quiet)
         logging.getLogger("ray.tune").setLevel(logging.WARNING)
         try:
             results = self._tuner(resume).fit()
         finally:
-            ray.shutdown()
+            if started_here:
+                ray.shutdown()
         failures = []
         for result in results:
             if result.error is not None:
