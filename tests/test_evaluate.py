@@ -83,8 +83,8 @@ def test_same_seed_same_statistics_and_stochastic_mode(workdir, best_model):
     ],
 )
 def test_zoo_style_model_selection(workdir, selection, expected):
-    result = run_script(
-        "evaluate.py", "-f", "logs", "--algo", "sac", "--env", "MinitaurBulletEnv-v0",
+    result = run_main(
+        evaluate.main, "-f", "logs", "--algo", "sac", "--env", "MinitaurBulletEnv-v0",
         *selection, "--episodes", "1", *SHORT, cwd=workdir,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr

@@ -97,8 +97,13 @@ def test_every_head_exports_and_acts_in_env_units(algo, kwargs, tmp_path):
 
         kwargs = {**kwargs, "policy": StabilizedSACPolicy}
     model_path = tiny_model(tmp_path, algo, **kwargs)
-    written = export(model_path, tmp_path / "p.onnx")
-    assert written.returncode == 0, written.stderr
+    if algo == "TD3":  # one head as a user runs the command, the others in this process
+        written = export(model_path, tmp_path / "p.onnx")
+        assert written.returncode == 0, written.stderr
+    else:
+        from minitaur_env.training.onnx_export import export_onnx
+
+        export_onnx(model_path, tmp_path / "p.onnx")
     model, onnx = load_policy(model_path, device="cpu"), OnnxPolicy(tmp_path / "p.onnx")
     obs = np.random.default_rng(1).uniform(-1, 1, (64, 3)).astype(np.float32)
     expected = np.stack([model.act(o) for o in obs])

@@ -353,7 +353,7 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
         (["--env-kwargs", "energy_weight=0.1"], "env_kwargs.energy_weight 0.1 contradicts"),
         (["--config", "tutorial"], "--config cannot be combined with --resume"),
     ):
-        refused = run_script("train.py", "--resume", run, *flags, cwd=tmp_path)
+        refused = run_main(train.main, "--resume", run, *flags, cwd=tmp_path)
         assert refused.returncode == 2 and error_lines(refused) == [
             line for line in error_lines(refused) if message in line
         ], refused.stderr

@@ -8,8 +8,8 @@ import argparse
 from typing import NoReturn
 
 # The choices the scripts' flags offer, named here so that the scripts parse their flags
-# (and answer --help or a typo) without importing torch. ``algorithms.ALGORITHMS`` maps
-# the names to classes; ``envs`` and ``progress`` act on the other two.
+# (and answer --help or a typo) without importing torch; ``algorithms``, ``envs`` and
+# ``progress`` act on them.
 ALGORITHM_NAMES = ("sac", "td3", "ppo", "a2c", "tqc", "crossq")
 BACKENDS = ("sb3", "sbx")
 # "auto": several envs grouped over the CPU cores, a single env in the calling process.
