@@ -11,6 +11,7 @@ import yaml
 import train
 from minitaur_env.training import Experiment, ExperimentConfig
 from minitaur_env.training.run_folder import RunFolder
+from tests.scripts import REPO
 
 PENDULUM = [
     "--env", "Pendulum-v1", "-n", "300", "--eval-freq", "0", "--save-freq", "150",
@@ -90,7 +91,7 @@ def _with_torch_hidden(script: str, *args: str) -> subprocess.CompletedProcess:
     hide = f"import sys, runpy\nsys.modules['torch'] = None\nsys.argv = {[script, *args]!r}\n"
     run = hide + f"runpy.run_path({script!r}, run_name='__main__')"
     return subprocess.run([sys.executable, "-c", run], capture_output=True, text=True,
-                          timeout=120, cwd=train.__file__.rsplit("/", 1)[0])  # fmt: skip
+                          timeout=120, cwd=REPO)  # fmt: skip
 
 
 def test_flags_are_parsed_before_torch_is_imported():
