@@ -241,12 +241,25 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
 
 
 def origin_of(trained_agent: str | None) -> dict | None:
-    """The model a run started from (train.py -i) and, if it was shipped, its training."""
+    """The model a run started from (train.py -i) and how that model was trained: its
+    provenance's training if it was shipped, else its own run folder's command and seed
+    (a kept run, say), so that the whole chain is written by code."""
     if not trained_agent:
         return None
-    provenance = RunFolder.of_model(Path(trained_agent)).provenance
-    earlier = read_yaml(provenance) if provenance.is_file() else {}
-    return {"trained_agent": trained_agent, **earlier.get("training", {})}
+    model = Path(trained_agent)
+    run = RunFolder.of_model(model)
+    if run.provenance.is_file():
+        earlier = read_yaml(run.provenance).get("training", {})
+    elif run.command.is_file() and run.config.is_file() and model.is_file():
+        earlier = {
+            "commands": run.command.read_text().strip().splitlines(),
+            "seed": run.read_config()["seed"],
+            "model": f"{model.relative_to(run.path)} of {run.path}",
+            "model_steps": saved_steps(model),
+        }
+    else:
+        earlier = {}
+    return {"trained_agent": trained_agent, **earlier}
 
 
 def saved_steps(model: Path) -> int:
