@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.trial import TRIAL_FILE
 
 
 def run_folders(path: Path) -> list[RunFolder]:
@@ -36,7 +37,7 @@ def keep(run: RunFolder, destination: Path) -> None:
     kept = RunFolder(destination)  # its env name comes from the copied config.yml
     shutil.copytree(run.zoo_dir, kept.zoo_dir)
     shutil.copytree(run.monitor_dir, kept.monitor_dir)
-    trial = run.path.parents[1] / "trial.yml"  # <trial>/<algo>/<env>_N
+    trial = run.path.parents[1] / TRIAL_FILE  # <trial>/<algo>/<env>_N
     if trial.is_file():
         shutil.copy2(trial, kept.path / trial.name)
 

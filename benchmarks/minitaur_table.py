@@ -42,7 +42,6 @@ from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.shipping import judge
 
 RESULTS = Path(__file__).resolve().parent / "results"
-LIVE_REPORT = "final_model_report_live_actor.json"
 # A row glob ending in this judges an actor_ema run's live actor: the model the same run
 # ends with without the average, since the average does not change training.
 LIVE = "#live-actor"
@@ -64,7 +63,6 @@ TABLES = {
         "target_entropy 0 + lin_7.3e-4 over 150k + gSDE": "sac-ablation/ent0-lin150k-gsde/seed*",
     },
 }
-REPORT = "final_model_report.json"
 FALL_WINDOW = (50_000, 150_000)
 NONE = "-"
 
@@ -79,7 +77,7 @@ def final_report(
 ) -> dict | None:
     """The final model's result on the report episodes, or None if none was kept."""
     model = run.final_model
-    cache = run.path / (LIVE_REPORT if live_actor else REPORT)
+    cache = run.final_model_report(live_actor)
     if not model.is_file():  # a run whose model was not kept may have a recorded result
         return json.loads(cache.read_text()) if cache.is_file() else None
     digest = hashlib.sha256(model.read_bytes()).hexdigest()

@@ -199,6 +199,11 @@ class RunFolder:
         """The deterministic actor as ONNX (python -m minitaur_env.onnx), where shipped."""
         return self.path / ONNX_POLICY
 
+    def final_model_report(self, live_actor: bool = False) -> Path:
+        """benchmarks/minitaur_table.py's judgement of the final model (or its live actor)."""
+        suffix = "_live_actor" if live_actor else ""
+        return self.path / f"final_model_report{suffix}.json"
+
     @property
     def learning_curve(self) -> Path:
         return self.path / "learning_curve.png"
