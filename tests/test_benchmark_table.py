@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
+from minitaur_env.training import shipping
 from minitaur_env.training.aggregate import RunCurve, iqm_with_ci
 from minitaur_env.training.run_folder import RunFolder
 from tests.scripts import REPO, TINY, error_lines, run_script
@@ -77,29 +78,22 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
     assert provenance["training"]["wall_clock_min_to_model"] > 0
 
 
-def test_a_model_trained_on_from_a_kept_run_ships_with_that_runs_command(finished_run, tmp_path):
-    # The shipped PPO is a kept default run trained on (-i): its provenance must name the
-    # kept run's own command and seed, not just the path it started from.
+def test_a_model_trained_on_from_a_kept_run_names_that_runs_command(finished_run, tmp_path):
+    # The shipped PPO came from a kept default run; a model trained on from one (-i) must
+    # ship with the kept run's own command and seed (ship() writes origin_of() as its
+    # provenance's started_from), not just the path it started from.
     run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "kept", cwd=tmp_path)
     kept = RunFolder(tmp_path / "kept" / "seed3")
-    trained_on = run_script(
-        "train.py", "-i", str(kept.zoo_model), "-n", "80", *FAST_SAC, "--seed", "4",
-        "--eval-freq", "80", "--eval-episodes", "1", *TINY, cwd=tmp_path,
-    )  # fmt: skip
-    assert trained_on.returncode == 0, trained_on.stderr
-    shipped = RunFolder(tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1")
-    result = run_script(
-        "-m", "minitaur_env.ship", str(tmp_path / "logs" / "sac" / "MinitaurBulletEnv-v0_1"),
-        "--final-only", "--episodes", "1", "--ship", str(shipped.path), cwd=tmp_path,
-    )  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    training = yaml.safe_load(shipped.provenance.read_text())["training"]
-    assert training["seed"] == 4
-    origin = training["started_from"]
+    origin = shipping.origin_of(str(kept.zoo_model))
     assert origin["trained_agent"] == str(kept.zoo_model)
     assert origin["commands"] == kept.command.read_text().strip().splitlines()
     assert origin["commands"][0].startswith("python train.py -n 160")
     assert origin["seed"] == 3 and origin["model_steps"] == 160
+    # A shipped model's own provenance still wins: its training as it was shipped.
+    kept.provenance.write_text("training: {commands: [python train.py --seed 9], seed: 9}\n")
+    assert shipping.origin_of(str(kept.zoo_model)) == {
+        "trained_agent": str(kept.zoo_model), "commands": ["python train.py --seed 9"], "seed": 9,
+    }  # fmt: skip
 
 
 def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, tmp_path):
