@@ -170,7 +170,7 @@ HEADER = (
 )
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--table", choices=list(TABLES), default="benchmark")
     parser.add_argument(
@@ -186,7 +186,7 @@ def main() -> None:
         help="load pickles (statistics without their JSON): run folders you trust only",
     )  # fmt: skip
     parser.add_argument("--plot", type=Path, help="write the IQM curves (figure 1) to this PNG")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     specs: list[tuple[str, str]] = []
     for text in args.row or []:
         label, sep, pattern = text.partition("=")

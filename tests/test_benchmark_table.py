@@ -96,9 +96,24 @@ def test_a_model_trained_on_from_a_kept_run_names_that_runs_command(finished_run
     }  # fmt: skip
 
 
-def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, tmp_path):
+@pytest.fixture
+def table(monkeypatch, capsys):
+    """minitaur_table.py's main() in this process (its refusals run as a user runs the
+    script, below): what it printed."""
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # as when the script runs
+    main = importlib.import_module("minitaur_table").main
+
+    def run(*argv: str) -> str:
+        capsys.readouterr()
+        main(list(argv))
+        return capsys.readouterr().out
+
+    return run
+
+
+def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, tmp_path, table):
     run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/tiny", cwd=tmp_path)
-    report = tmp_path / "r" / "tiny" / "seed3" / "final_model_report.json"
+    report = RunFolder(tmp_path / "r" / "tiny" / "seed3").final_model_report()
     row = ["--row", f"tiny={tmp_path}/r/tiny/seed*", "--episodes", "1"]
 
     first = run_script("benchmarks/minitaur_table.py", *row, cwd=tmp_path)
@@ -109,11 +124,9 @@ def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, t
     assert f"| {judged['mean']:.2f} |" in line  # median of one seed
     # The stored result is reused while the model is the same file...
     report.write_text(json.dumps({**judged, "mean": 123.0}))
-    cached = run_script("benchmarks/minitaur_table.py", *row, cwd=tmp_path)
-    assert "| 123.00 |" in cached.stdout
+    assert "| 123.00 |" in table(*row)
     # ...and played again for --rejudge (or another model, seed or episode count).
-    again = run_script("benchmarks/minitaur_table.py", *row, "--rejudge", cwd=tmp_path)
-    assert "123.00" not in again.stdout
+    assert "123.00" not in table(*row, "--rejudge")
     assert json.loads(report.read_text())["mean"] == pytest.approx(judged["mean"])
 
 
@@ -162,7 +175,7 @@ def test_the_confidence_interval_is_the_same_on_every_call_and_leaves_numpy_alon
     assert len(others) > 1  # the seed still decides the resamples
 
 
-def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_run):
+def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_run, table):
     trained = run_script(
         "train.py", "-n", "160", *FAST_SAC, "policy=StabilizedMlpPolicy",
         "policy_kwargs={net_arch: [64, 64], actor_ema: 0.999}", "--seed", "3",
@@ -173,20 +186,15 @@ def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_
     run_script("benchmarks/keep_runs.py", str(run), "--into", "r/ema", cwd=tmp_path)
     kept = tmp_path / "r" / "ema" / "seed3"
     args = ["--episodes", "1"]
-    average = run_script("benchmarks/minitaur_table.py", "--row", f"a={kept}", *args, cwd=tmp_path)
-    live = run_script(
-        "benchmarks/minitaur_table.py", "--row", f"l={kept}#live-actor", *args, cwd=tmp_path
-    )
-    assert average.returncode == 0 and live.returncode == 0, live.stderr
-    assert "averaged actor's" in live.stdout and "averaged actor's" not in average.stdout
-    judged = {
-        name: json.loads((kept / name).read_text())
-        for name in ("final_model_report.json", "final_model_report_live_actor.json")
-    }
+    average = table("--row", f"a={kept}", *args)
+    live = table("--row", f"l={kept}#live-actor", *args)
+    assert "averaged actor's" in live and "averaged actor's" not in average
+    reports = [RunFolder(kept).final_model_report(live_actor) for live_actor in (False, True)]
+    judged = [json.loads(report.read_text()) for report in reports]
     # The same file, judged with two different actors (0.999 after ~100 updates keeps the
     # average near the initial weights, far from the live actor).
-    assert len({r["model_sha256"] for r in judged.values()}) == 1
-    assert len({r["mean"] for r in judged.values()}) == 2
+    assert len({r["model_sha256"] for r in judged}) == 1
+    assert len({r["mean"] for r in judged}) == 2
 
     # A run trained without the average has no live actor to tell apart: one line.
     run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/plain", cwd=tmp_path)
