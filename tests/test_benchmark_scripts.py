@@ -188,3 +188,20 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
     pushes = rf"legs at rest {taken}; default trot {taken}"
     assert figure(rf"pushes of 0.001 N, random directions: {pushes}", result.stdout) == [8, 0, 8, 0]
     assert figure(rf"pushes of 300 N, random directions: {pushes}", result.stdout) == [1, 1, 1, 1]
+
+
+def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_path):
+    result = run_script(
+        "benchmarks/push_bound.py", "-n", "2048", "--eval-freq", "1000", "--eval-episodes", "1",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    row = r"falls ([0-9]+)/([0-9]+)  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
+    # Legs at rest fall at the first full-force push or soon after: the bound's baseline.
+    falls, episodes, pushes, survived = figure(rf"baseline, zero action.*: {row}", result.stdout)
+    assert episodes == 20 and falls >= 15 and pushes >= 1
+    assert survived / 100 == pytest.approx(1 - falls / (pushes * episodes), abs=0.001)
+    assert len(re.findall(rf"^ +[0-9,]+  {row}", result.stdout, re.M)) == 2  # at 1000, 2000
+    falls, episodes, pushes, survived = figure(rf"report seeds \(20\)  {row}", result.stdout)
+    assert episodes == 20 and pushes >= 1 and 0 <= survived <= 100
+    assert not list(tmp_path.iterdir())  # nothing written: it only prints

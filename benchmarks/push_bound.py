@@ -1,0 +1,159 @@
+"""How often can a policy whose only job is not to fall survive the env's pushes?
+
+An upper bound for issue 23's pushes row (<= 2 falls in 20 episodes under
+``pushes=true``): PPO (the Minitaur entry's settings) learns to stay up under Tan et al.'s
+pushes (130-220 N for 0.06 s every 1.2 s, any horizontal direction) with a reward of 1
+per step survived instead of the env's. Nothing else asks anything of it: it may stand,
+crouch or walk. The training pushes grow from 0 to full force over the first
+``--ramp`` of the steps; evaluations push at full force. It sees roll, pitch, their
+rates and the motor angles (``observation="imu"``) for the last ``--history`` steps.
+
+Prints, every ``--eval-freq`` steps and at the end on the 20 report seeds
+(12345-12364, never used in training): falls, pushes begun per episode, and the share of
+pushes survived. The baseline, measured in the same run before training: the legs held
+at rest (the zero action).
+
+    python benchmarks/push_bound.py [--env MinitaurBulletEnv-v0] [-n 1000000]
+        [--env-kwargs dynamics_ranges=classic] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium.wrappers import FlattenObservation, FrameStackObservation
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+import minitaur_env  # noqa: F401  (registers the ids)
+from minitaur_env.training.hyperparams import parse_overrides
+
+REPORT_SEEDS = range(12345, 12365)
+
+
+class SurvivalReward(gym.Wrapper):
+    """1 per step survived in place of the env's reward."""
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        observation, _, terminated, truncated, info = self.env.step(action)
+        return observation, 1.0, terminated, truncated, info
+
+
+def make_env(env_id: str, kwargs: dict[str, Any], history: int) -> gym.Env:
+    env = gym.make(env_id, pushes=True, observation="imu", **kwargs)
+    if history > 1:
+        env = FlattenObservation(FrameStackObservation(env, history))
+    return SurvivalReward(env)
+
+
+def play(policy: Any, env: gym.Env, seeds: range | list[int]) -> tuple[int, float, float]:
+    """Falls, pushes begun per episode and the share of pushes survived, at full force."""
+    falls, pushes = 0, 0
+    for seed in seeds:
+        observation, _ = env.reset(seed=seed)
+        pushing, done, terminated = False, False, False
+        while not done:
+            observation, _, terminated, truncated, info = env.step(policy(observation))
+            started = bool(np.any(info["push_force"]))
+            pushes += int(started and not pushing)
+            pushing, done = started, terminated or truncated
+        falls += int(terminated)
+    episodes = len(seeds)
+    return falls, pushes / episodes, 1.0 - falls / max(pushes, 1)
+
+
+class PushRamp(BaseCallback):
+    """Training pushes at ``steps / ramp_steps`` of full force, 1 from then on."""
+
+    def __init__(self, ramp_steps: int) -> None:
+        super().__init__()
+        self.ramp_steps = ramp_steps
+
+    def _on_rollout_start(self) -> None:
+        scale = min(1.0, self.num_timesteps / max(self.ramp_steps, 1))
+        for env in self.training_env.venv.envs:
+            env.unwrapped.set_push_scale(scale)
+
+    def _on_step(self) -> bool:
+        return True
+
+
+class Evaluation(BaseCallback):
+    """Prints falls and pushes survived at full force every ``freq`` steps."""
+
+    def __init__(self, env: gym.Env, freq: int, episodes: int) -> None:
+        super().__init__()
+        self.env, self.freq, self.episodes, self._next = env, freq, episodes, freq
+        self.started = time.monotonic()
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self._next = (self.num_timesteps // self.freq + 1) * self.freq
+            report(f"{self.num_timesteps:>9,}", self.model, self.env, range(self.episodes))
+            print(f"{'':>9}  ({(time.monotonic() - self.started) / 60:.1f} min)", flush=True)
+        return True
+
+
+def report(label: str, model: PPO, env: gym.Env, seeds: range) -> None:
+    normalizer = model.get_env()
+
+    def policy(observation: np.ndarray) -> np.ndarray:
+        normalized = normalizer.normalize_obs(observation[None])
+        return model.predict(normalized, deterministic=True)[0][0]
+
+    falls, pushes, survived = play(policy, env, seeds)
+    print(
+        f"{label}  falls {falls}/{len(seeds)}  pushes begun {pushes:.1f}/episode"
+        f"  survived {survived:.1%}",
+        flush=True,
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="MinitaurBulletEnv-v0")
+    parser.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY=VALUE")
+    parser.add_argument("-n", "--timesteps", type=int, default=1_000_000)
+    parser.add_argument("--ramp", type=float, default=0.5, help="share of steps to full force")
+    parser.add_argument("--history", type=int, default=4)
+    parser.add_argument("--eval-freq", type=int, default=100_000)
+    parser.add_argument("--eval-episodes", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
+
+    evaluation_env = make_env(args.env, kwargs, args.history)
+    zeros = np.zeros(evaluation_env.action_space.shape)
+    falls, pushes, survived = play(lambda _: zeros, evaluation_env, REPORT_SEEDS)
+    print(
+        f"baseline, zero action on the report seeds: falls {falls}/20"
+        f"  pushes begun {pushes:.1f}/episode  survived {survived:.1%}",
+        flush=True,
+    )
+
+    venv = DummyVecEnv([lambda: make_env(args.env, kwargs, args.history) for _ in range(8)])
+    venv.seed(args.seed)
+    venv = VecNormalize(venv, gamma=0.99)
+    model = PPO(
+        "MlpPolicy", venv, n_steps=256, batch_size=256, n_epochs=10, learning_rate=2.5e-4,
+        gamma=0.99, gae_lambda=0.95, ent_coef=0.0, clip_range=0.2, seed=args.seed,
+        policy_kwargs={"net_arch": [256, 256], "log_std_init": -1.0},
+    )  # fmt: skip
+    callbacks = [
+        PushRamp(int(args.ramp * args.timesteps)),
+        Evaluation(evaluation_env, args.eval_freq, args.eval_episodes),
+    ]
+    model.learn(args.timesteps, callback=callbacks)
+    venv.training = False
+    report("report seeds (20)", model, evaluation_env, REPORT_SEEDS)
+
+
+if __name__ == "__main__":
+    main()
