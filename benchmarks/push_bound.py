@@ -13,14 +13,19 @@ Prints, every ``--eval-freq`` steps and at the end on the 20 report seeds
 pushes survived. The baseline, measured in the same run before training: the legs held
 at rest (the zero action).
 
+With ``--forces F ...`` it also prints, for the zero action and the trained policy, the
+share survived of pushes of exactly F newtons each (in the direction ``pushes`` sets, e.g.
+``--env-kwargs 'pushes={direction: 90}'`` for pushes from the side only).
+
     python benchmarks/push_bound.py [--env MinitaurBulletEnv-v0] [-n 1000000]
-        [--env-kwargs dynamics_ranges=classic] [--seed 0]
+        [--env-kwargs dynamics_ranges=classic] [--seed 0] [--forces 60 130 220]
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -46,7 +51,7 @@ class SurvivalReward(gym.Wrapper):
 
 
 def make_env(env_id: str, kwargs: dict[str, Any], history: int) -> gym.Env:
-    env = gym.make(env_id, pushes=True, observation="imu", **kwargs)
+    env = gym.make(env_id, **{"pushes": True, "observation": "imu", **kwargs})
     if history > 1:
         env = FlattenObservation(FrameStackObservation(env, history))
     return SurvivalReward(env)
@@ -100,14 +105,18 @@ class Evaluation(BaseCallback):
         return True
 
 
-def report(label: str, model: PPO, env: gym.Env, seeds: range) -> None:
+def deterministic_policy(model: PPO) -> Callable[[np.ndarray], np.ndarray]:
     normalizer = model.get_env()
 
     def policy(observation: np.ndarray) -> np.ndarray:
         normalized = normalizer.normalize_obs(observation[None])
         return model.predict(normalized, deterministic=True)[0][0]
 
-    falls, pushes, survived = play(policy, env, seeds)
+    return policy
+
+
+def report(label: str, model: PPO, env: gym.Env, seeds: range) -> None:
+    falls, pushes, survived = play(deterministic_policy(model), env, seeds)
     print(
         f"{label}  falls {falls}/{len(seeds)}  pushes begun {pushes:.1f}/episode"
         f"  survived {survived:.1%}",
@@ -125,6 +134,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-freq", type=int, default=100_000)
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--forces", type=float, nargs="*", default=[], metavar="N",
+        help="at the end, the share survived of pushes of exactly N newtons, per N",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
@@ -153,6 +166,28 @@ def main(argv: list[str] | None = None) -> None:
     model.learn(args.timesteps, callback=callbacks)
     venv.training = False
     report("report seeds (20)", model, evaluation_env, REPORT_SEEDS)
+    if args.forces:
+        policies = {"zero action": lambda _: zeros, "trained": deterministic_policy(model)}
+        by_force(args, kwargs, policies)
+
+
+def by_force(
+    args: argparse.Namespace, kwargs: dict[str, Any], policies: dict[str, Callable]
+) -> None:
+    """Per policy and force: the share of pushes survived on the report seeds."""
+    pushes = kwargs.get("pushes", True)
+    pushes = {} if pushes is True else dict(pushes)
+    for force in args.forces:
+        env = make_env(
+            args.env, {**kwargs, "pushes": {**pushes, "force": (force, force)}}, args.history
+        )
+        for name, policy in policies.items():
+            falls, begun, survived = play(policy, env, REPORT_SEEDS)
+            print(
+                f"{force:>6.0f} N  {name:<12}  falls {falls}/20  pushes begun {begun:.1f}/episode"
+                f"  survived {survived:.1%}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

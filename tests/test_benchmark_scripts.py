@@ -193,7 +193,7 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
 def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_path):
     result = run_script(
         "benchmarks/push_bound.py", "-n", "2048", "--eval-freq", "1000", "--eval-episodes", "1",
-        cwd=tmp_path,
+        "--env-kwargs", "pushes={direction: 90}", "--forces", "400", cwd=tmp_path,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     row = r"falls ([0-9]+)/([0-9]+)  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
@@ -204,4 +204,8 @@ def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_pa
     assert len(re.findall(rf"^ +[0-9,]+  {row}", result.stdout, re.M)) == 2  # at 1000, 2000
     falls, episodes, pushes, survived = figure(rf"report seeds \(20\)  {row}", result.stdout)
     assert episodes == 20 and pushes >= 1 and 0 <= survived <= 100
+    # A 400 N push from the side, the force given and not drawn, topples both at the first.
+    for name in ("zero action", "trained"):
+        falls, episodes, pushes, survived = figure(rf"400 N  {name} +{row}", result.stdout)
+        assert (falls, episodes, pushes, survived) == (20, 20, 1.0, 0.0)
     assert not list(tmp_path.iterdir())  # nothing written: it only prints
