@@ -14,8 +14,10 @@ pushes survived. The baseline, measured in the same run before training: the leg
 at rest (the zero action).
 
 With ``--forces F ...`` it also prints, for the zero action and the trained policy, the
-share survived of pushes of exactly F newtons each (in the direction ``pushes`` sets, e.g.
-``--env-kwargs 'pushes={direction: 90}'`` for pushes from the side only).
+share survived of pushes of exactly F newtons each, in the direction ``pushes`` sets
+(``--env-kwargs 'pushes={direction: 90}'`` trains and tests on pushes from the side only)
+or in each of ``--directions`` (degrees, 0 forward). ``-n 0`` trains nothing: the zero
+action alone, e.g. ``-n 0 --forces 60 130 220 --directions 0 45 90``.
 
     python benchmarks/push_bound.py [--env MinitaurBulletEnv-v0] [-n 1000000]
         [--env-kwargs dynamics_ranges=classic] [--seed 0] [--forces 60 130 220]
@@ -128,17 +130,29 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="MinitaurBulletEnv-v0")
     parser.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY=VALUE")
-    parser.add_argument("-n", "--timesteps", type=int, default=1_000_000)
+    parser.add_argument("-n", "--timesteps", type=int, default=1_000_000, help="0: no training")
     parser.add_argument("--ramp", type=float, default=0.5, help="share of steps to full force")
     parser.add_argument("--history", type=int, default=4)
     parser.add_argument("--eval-freq", type=int, default=100_000)
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--forces", type=float, nargs="*", default=[], metavar="N",
+        "--forces",
+        type=float,
+        nargs="*",
+        default=[],
+        metavar="N",
         help="at the end, the share survived of pushes of exactly N newtons, per N",
+    )
+    parser.add_argument(
+        "--directions", type=float, nargs="*", default=[], metavar="DEGREES",
+        help="with --forces: per direction of the pushes (default: the pushes' own)",
     )  # fmt: skip
     args = parser.parse_args(argv)
+    if args.timesteps < 0:
+        parser.error(f"-n must be 0 or more steps, got {args.timesteps}")
+    if args.directions and not args.forces:
+        parser.error("--directions needs --forces")
     torch.set_num_threads(1)
     kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
 
@@ -150,6 +164,10 @@ def main(argv: list[str] | None = None) -> None:
         f"  pushes begun {pushes:.1f}/episode  survived {survived:.1%}",
         flush=True,
     )
+    policies: dict[str, Callable[[np.ndarray], np.ndarray]] = {"zero action": lambda _: zeros}
+    if args.timesteps == 0:
+        by_force(args, kwargs, policies)
+        return
 
     venv = DummyVecEnv([lambda: make_env(args.env, kwargs, args.history) for _ in range(8)])
     venv.seed(args.seed)
@@ -166,28 +184,30 @@ def main(argv: list[str] | None = None) -> None:
     model.learn(args.timesteps, callback=callbacks)
     venv.training = False
     report("report seeds (20)", model, evaluation_env, REPORT_SEEDS)
-    if args.forces:
-        policies = {"zero action": lambda _: zeros, "trained": deterministic_policy(model)}
-        by_force(args, kwargs, policies)
+    by_force(args, kwargs, {**policies, "trained": deterministic_policy(model)})
 
 
 def by_force(
-    args: argparse.Namespace, kwargs: dict[str, Any], policies: dict[str, Callable]
+    args: argparse.Namespace,
+    kwargs: dict[str, Any],
+    policies: dict[str, Callable[[np.ndarray], np.ndarray]],
 ) -> None:
-    """Per policy and force: the share of pushes survived on the report seeds."""
+    """Per force (and direction) and policy: the share of pushes survived on the report seeds."""
     pushes = kwargs.get("pushes", True)
     pushes = {} if pushes is True else dict(pushes)
+    directions = args.directions or [pushes.get("direction")]
     for force in args.forces:
-        env = make_env(
-            args.env, {**kwargs, "pushes": {**pushes, "force": (force, force)}}, args.history
-        )
-        for name, policy in policies.items():
-            falls, begun, survived = play(policy, env, REPORT_SEEDS)
-            print(
-                f"{force:>6.0f} N  {name:<12}  falls {falls}/20  pushes begun {begun:.1f}/episode"
-                f"  survived {survived:.1%}",
-                flush=True,
-            )
+        for direction in directions:
+            setting = {**pushes, "force": (force, force), "direction": direction}
+            env = make_env(args.env, {**kwargs, "pushes": setting}, args.history)
+            label = f"{force:>6.0f} N" + (f"  {direction:>4.0f} deg" if args.directions else "")
+            for name, policy in policies.items():
+                falls, begun, survived = play(policy, env, REPORT_SEEDS)
+                print(
+                    f"{label}  {name:<12}  falls {falls}/20  pushes begun {begun:.1f}/episode"
+                    f"  survived {survived:.1%}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

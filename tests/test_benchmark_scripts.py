@@ -209,3 +209,31 @@ def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_pa
         falls, episodes, pushes, survived = figure(rf"400 N  {name} +{row}", result.stdout)
         assert (falls, episodes, pushes, survived) == (20, 20, 1.0, 0.0)
     assert not list(tmp_path.iterdir())  # nothing written: it only prints
+
+
+def test_push_bound_without_training_maps_the_zero_action_by_force_and_direction(tmp_path):
+    result = run_script(
+        "benchmarks/push_bound.py", "-n", "0", "--forces", "400", "--directions", "90", "-90",
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    row = r"falls ([0-9]+)/20  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
+    for direction in ("90", "-90"):
+        falls, pushes, survived = figure(
+            rf"400 N +{direction} deg  zero action +{row}", result.stdout
+        )
+        assert (falls, pushes, survived) == (20, 1.0, 0.0)  # from either side, at the first
+    assert "trained" not in result.stdout and "report seeds (20)" not in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [(["-n", "-5"], "-n must be 0 or more"), (["--directions", "90"], "--directions needs")],
+)
+def test_push_bound_refuses_a_negative_budget_and_directions_without_forces(
+    tmp_path, arguments, message
+):
+    result = run_script("benchmarks/push_bound.py", *arguments, cwd=tmp_path)
+    assert result.returncode == 2
+    assert message in result.stderr.strip().splitlines()[-1]
+    assert not list(tmp_path.iterdir())
