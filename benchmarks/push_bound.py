@@ -28,7 +28,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -59,20 +59,36 @@ def make_env(env_id: str, kwargs: dict[str, Any], history: int) -> gym.Env:
     return SurvivalReward(env)
 
 
-def play(policy: Any, env: gym.Env, seeds: range | list[int]) -> tuple[int, float, float]:
-    """Falls, pushes begun per episode and the share of pushes survived, at full force."""
-    falls, pushes = 0, 0
+class Tally(NamedTuple):
+    falls: int
+    pushes_per_episode: float
+    survived: float  # share of pushes begun that the robot was still up after
+    unpushed_falls: int  # falls before any push: the policy's own, not the pushes'
+
+    def line(self, episodes: int) -> str:
+        own = f"  ({self.unpushed_falls} before any push)" if self.unpushed_falls else ""
+        return (
+            f"falls {self.falls}/{episodes}  pushes begun {self.pushes_per_episode:.1f}/episode"
+            f"  survived {self.survived:.1%}{own}"
+        )
+
+
+def play(policy: Any, env: gym.Env, seeds: range | list[int]) -> Tally:
+    """Falls, pushes begun per episode and the share of pushes survived."""
+    falls, pushes, unpushed = 0, 0, 0
     for seed in seeds:
         observation, _ = env.reset(seed=seed)
-        pushing, done, terminated = False, False, False
+        pushing, done, terminated, begun = False, False, False, 0
         while not done:
             observation, _, terminated, truncated, info = env.step(policy(observation))
             started = bool(np.any(info["push_force"]))
-            pushes += int(started and not pushing)
+            begun += int(started and not pushing)
             pushing, done = started, terminated or truncated
         falls += int(terminated)
-    episodes = len(seeds)
-    return falls, pushes / episodes, 1.0 - falls / max(pushes, 1)
+        unpushed += int(terminated and begun == 0)
+        pushes += begun
+    survived = 1.0 - (falls - unpushed) / max(pushes, 1)
+    return Tally(falls, pushes / len(seeds), survived, unpushed)
 
 
 class PushRamp(BaseCallback):
@@ -118,12 +134,7 @@ def deterministic_policy(model: PPO) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def report(label: str, model: PPO, env: gym.Env, seeds: range) -> None:
-    falls, pushes, survived = play(deterministic_policy(model), env, seeds)
-    print(
-        f"{label}  falls {falls}/{len(seeds)}  pushes begun {pushes:.1f}/episode"
-        f"  survived {survived:.1%}",
-        flush=True,
-    )
+    print(f"{label}  {play(deterministic_policy(model), env, seeds).line(len(seeds))}", flush=True)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -158,12 +169,8 @@ def main(argv: list[str] | None = None) -> None:
 
     evaluation_env = make_env(args.env, kwargs, args.history)
     zeros = np.zeros(evaluation_env.action_space.shape)
-    falls, pushes, survived = play(lambda _: zeros, evaluation_env, REPORT_SEEDS)
-    print(
-        f"baseline, zero action on the report seeds: falls {falls}/20"
-        f"  pushes begun {pushes:.1f}/episode  survived {survived:.1%}",
-        flush=True,
-    )
+    tally = play(lambda _: zeros, evaluation_env, REPORT_SEEDS)
+    print(f"baseline, zero action on the report seeds: {tally.line(20)}", flush=True)
     policies: dict[str, Callable[[np.ndarray], np.ndarray]] = {"zero action": lambda _: zeros}
     if args.timesteps == 0:
         by_force(args, kwargs, policies)
@@ -202,11 +209,8 @@ def by_force(
             env = make_env(args.env, {**kwargs, "pushes": setting}, args.history)
             label = f"{force:>6.0f} N" + (f"  {direction:>4.0f} deg" if args.directions else "")
             for name, policy in policies.items():
-                falls, begun, survived = play(policy, env, REPORT_SEEDS)
                 print(
-                    f"{label}  {name:<12}  falls {falls}/20  pushes begun {begun:.1f}/episode"
-                    f"  survived {survived:.1%}",
-                    flush=True,
+                    f"{label}  {name:<12}  {play(policy, env, REPORT_SEEDS).line(20)}", flush=True
                 )
 
 

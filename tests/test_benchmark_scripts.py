@@ -237,3 +237,37 @@ def test_push_bound_refuses_a_negative_budget_and_directions_without_forces(
     assert result.returncode == 2
     assert message in result.stderr.strip().splitlines()[-1]
     assert not list(tmp_path.iterdir())
+
+
+class ScriptedPushes:
+    """Steps whose info says whether a push is on; the episode ends (fall) where told."""
+
+    def __init__(self, episodes: list[tuple[list[bool], bool]]) -> None:
+        self.episodes, self.episode = episodes, -1
+
+    def reset(self, seed: int) -> tuple[int, dict]:
+        self.episode, self.t = self.episode + 1, 0
+        return 0, {}
+
+    def step(self, action: int) -> tuple[int, float, bool, bool, dict]:
+        pushes, fell = self.episodes[self.episode]
+        on, self.t = pushes[self.t], self.t + 1
+        last = self.t == len(pushes)
+        return 0, 1.0, fell and last, not fell and last, {"push_force": [float(on), 0, 0]}
+
+
+def test_push_bound_blames_a_fall_on_the_pushes_only_after_one_began():
+    spec = importlib.util.spec_from_file_location("push_bound", REPO / "benchmarks/push_bound.py")
+    push_bound = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(push_bound)
+    episodes = [
+        ([False, True, True, False, True], True),  # two pushes, then a fall: one survived
+        ([False, False], True),  # a fall with no push: the policy's own
+        ([True, False], False),  # a push survived to the end
+    ]
+    tally = push_bound.play(lambda _: 0, ScriptedPushes(episodes), range(3))
+    assert tally == (2, 1.0, pytest.approx(2 / 3), 1)  # 3 pushes, 1 fell under one
+    assert "(1 before any push)" in tally.line(3)
+    only_pushed = push_bound.play(lambda _: 0, ScriptedPushes(episodes[::2]), range(2))
+    assert only_pushed == (1, 1.5, pytest.approx(2 / 3), 0)
+    assert "before any push" not in only_pushed.line(2)
