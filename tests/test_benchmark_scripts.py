@@ -116,6 +116,16 @@ def test_threads_under_load_gives_the_default_variant_torchs_real_default(monkey
     assert rate > 0 and threads == int(default)
 
 
+def assert_ratio_of_rounded(ratio: float, rate: float, baseline: float, rate_step: float) -> None:
+    """The printed ratio (2 decimals) is rate / baseline for some true rates that round to
+    the printed ones: under load a baseline of a few steps/s makes that rounding alone
+    worth several percent of the ratio."""
+    half = rate_step / 2
+    low = (rate - half) / (baseline + half)
+    high = (rate + half) / max(baseline - half, 1e-9)
+    assert low - 0.005 <= ratio <= high + 0.005, (ratio, rate, baseline)
+
+
 def test_training_speed_times_every_variant_and_its_baseline_at_torchs_default(tmp_path):
     needs("sbx")
     clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
@@ -136,12 +146,13 @@ def test_training_speed_times_every_variant_and_its_baseline_at_torchs_default(t
     for _, rate, ratio in variants:
         # A timed window left empty would print 0.0 steps/s and a ratio of 1.00.
         assert float(rate) > 0
-        assert float(ratio) == pytest.approx(float(rate) / baseline, abs=0.01 + 0.05 * float(ratio))
+        assert_ratio_of_rounded(float(ratio), float(rate), baseline, rate_step=0.1)
     dummy, grouped, ratio = figure(
         rf"DummyVecEnv {NUMBER} env steps/s; GroupedSubprocVecEnv .* {NUMBER}; ratio {NUMBER}x",
         result.stdout,
     )
-    assert dummy > 0 and ratio == pytest.approx(grouped / dummy, abs=0.01 + 0.05 * ratio)
+    assert dummy > 0
+    assert_ratio_of_rounded(ratio, grouped, dummy, rate_step=1.0)
     assert "(8 envs, 8-step rollouts, 10 epochs)" in result.stdout  # --ppo-rollout took
     # 1M transitions of 28 floats (observation and next observation), 8 actions, and
     # reward, done and timeout as float32: 260 MB.
