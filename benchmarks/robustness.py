@@ -9,7 +9,9 @@ Every cell is what ``python evaluate.py --model M --episodes 20 --seed 12345
 arguments (printed below the table). The episodes' seeds (12345..) are the docs' report
 report seeds, never used in training or selection; the env is ``MinitaurBulletEnv-v0``
 whatever the policy was trained on, or ``MinitaurBulletTrot-v0`` (the same env under the
-gait prior) for a policy trained with the gait prior, whose actions only it takes.
+gait prior) for a policy trained with the gait prior, whose actions only it takes. Of the
+policy's own env kwargs only those that say what it observes and how it acts (``INTERFACE``)
+are kept; the world is the column's.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from typing import Any
 
 from minitaur_env import RANDOMIZED_KWARGS
 from minitaur_env.training.evaluation import load_policy, pretrained_models
-from minitaur_env.training.shipping import judge
+from minitaur_env.training.shipping import condition_label, judge
 
+INTERFACE = ("observation", "history", "gait")
 ENV_ID = "MinitaurBulletEnv-v0"
 GAIT_ENV_ID = "MinitaurBulletTrot-v0"
 CONDITIONS: dict[str, dict[str, Any]] = {
@@ -60,10 +63,11 @@ def main() -> int:
 
     cells: dict[str, dict[str, dict[str, float]]] = {}
     for label, model in policies.items():
-        trained_on = load_policy(model).env_id or ENV_ID
-        env_id = GAIT_ENV_ID if "Trot" in trained_on else ENV_ID
+        policy = load_policy(model)
+        env_id = GAIT_ENV_ID if "Trot" in (policy.env_id or ENV_ID) else ENV_ID
+        interface = {k: v for k, v in policy.env_kwargs.items() if k in INTERFACE}
         for name, kwargs in conditions.items():
-            cell = judge(model, args.episodes, args.seed, env_id, kwargs)
+            cell = judge(model, args.episodes, args.seed, env=(env_id, {**interface, **kwargs}))
             cells.setdefault(label, {})[name] = cell
             print(f"{label:24s} {name:22s} {cell['mean']:6.2f} +- {cell['std']:5.2f}  "
                   f"falls {cell['falls']}/{args.episodes}", flush=True)  # fmt: skip
@@ -79,7 +83,7 @@ def main() -> int:
         print(f"| {label} | " + " | ".join(texts) + " |")
     print()
     for name, kwargs in conditions.items():
-        flags = " ".join(f"{k}={json.dumps(v).replace(' ', '')}" for k, v in kwargs.items())
+        flags = condition_label(kwargs)
         print(f"{name}: --env-kwargs {flags}" if flags else f"{name}: (no --env-kwargs)")
     if args.json:
         args.json.write_text(json.dumps(cells, indent=2) + "\n")

@@ -7,6 +7,8 @@
 Each candidate plays ``--select-episodes`` deterministic episodes on selection seeds
 (5000..), which neither training nor the report (12345..) uses; the one with the fewest
 falls, then the highest mean, is chosen and only then played on the report seeds.
+With ``--also-on KEY=VALUE...`` each candidate is also judged with those env kwargs
+changed (e.g. a policy trained under randomization, on the classic dynamics too).
 Candidates are each run's best model, final model and checkpoints from ``--from-steps``
 on, or with ``--final-only`` the final models alone (what the training command ends
 with). ``--ship`` writes the chosen model as a zoo run folder with its statistics,
@@ -39,6 +41,11 @@ def main(argv: list[str] | None = None) -> int:
         "--select-episodes", type=int,
         help="episodes per candidate on the selection seeds (default: --episodes); more "
         "of them tell a policy that falls once in 40 from one that never falls",
+    )  # fmt: skip
+    add(
+        "--also-on", nargs="+", action="append", metavar="KEY=VALUE",
+        help="also judge each candidate on its env with these --env-kwargs (repeatable); "
+        "falls are summed and means averaged over its own env and these",
     )  # fmt: skip
     add("--select-seed", type=int, default=5000, help="seed of selection episode 0")
     add("--report-seed", type=int, default=12345, help="seed of report episode 0")

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -21,13 +23,15 @@ def fake_run(root: Path) -> RunFolder:
 
 @pytest.fixture
 def judged(monkeypatch):
-    """judge() replaced by a table: model file name -> (mean, falls) on selection seeds."""
-    table: dict[str, tuple[float, int]] = {}
+    """judge() replaced by a table: model file name -> (mean, falls) on selection seeds;
+    (name, condition label) -> (mean, falls) under ``also_on`` conditions."""
+    table: dict[str | tuple[str, str], tuple[float, int]] = {}
     calls: list[tuple[str, int]] = []
 
-    def judge(model, episodes, seed, **_):
+    def judge(model, episodes, seed, overrides=None, **_):
         calls.append((Path(model).name, seed))
-        mean, falls = table.get(Path(model).name, (0.0, 0))
+        key = (Path(model).name, shipping.condition_label(overrides)) if overrides else None
+        mean, falls = table.get(key or Path(model).name, (0.0, 0))
         return {"mean": mean, "std": 0.0, "falls": falls, "speed": 1.0}
 
     monkeypatch.setattr(shipping, "judge", judge)
@@ -71,3 +75,66 @@ def test_no_candidate_is_one_line(tmp_path, judged):
     run.path.mkdir()
     with pytest.raises(UsageError, match="no candidate model"):
         shipping.select([run], episodes=1, log=lambda _: None)
+
+
+CLASSIC = {"dynamics_ranges": "classic", "pd_latency": 0}
+
+
+def test_also_on_sums_falls_over_the_conditions_and_reports_each(tmp_path, judged):
+    table, _ = judged
+    run = fake_run(tmp_path)
+    table.update({
+        "best_model.zip": (25.0, 3),
+        "MinitaurBulletEnv-v0.zip": (25.0, 3),
+        "rl_model_300_steps.zip": (20.0, 0),  # the best on its own env...
+        ("rl_model_300_steps.zip", "dynamics_ranges=classic pd_latency=0"): (14.0, 2),
+        "rl_model_100_steps.zip": (16.0, 1),  # ...but this one falls less in all
+        ("rl_model_100_steps.zip", "dynamics_ranges=classic pd_latency=0"): (15.0, 0),
+    })  # fmt: skip
+    report = shipping.select([run], episodes=2, from_steps=0, also_on=[CLASSIC], log=lambda _: None)
+    assert Path(report["chosen"]["model"]).name == "rl_model_100_steps.zip"
+    assert report["selection"][str(run.checkpoint(100))]["falls"] == 1
+    assert report["selection"][str(run.checkpoint(100))]["mean"] == pytest.approx(15.5)
+    assert report["chosen"]["also_on"]["dynamics_ranges=classic pd_latency=0"]["mean"] == 15.0
+    assert report["also_on"] == {"dynamics_ranges=classic pd_latency=0": CLASSIC}
+    # negative control: judged on its own env alone, the other checkpoint wins
+    report = shipping.select([run], episodes=2, from_steps=0, log=lambda _: None)
+    assert Path(report["chosen"]["model"]).name == "rl_model_300_steps.zip"
+    assert "also_on" not in report["chosen"]
+
+
+def test_a_condition_that_changes_nothing_or_repeats_is_refused(tmp_path, judged):
+    run = fake_run(tmp_path)
+    for also_on in ([{}], [CLASSIC, dict(CLASSIC)]):
+        with pytest.raises(UsageError, match="--also-on"):
+            shipping.select([run], episodes=1, also_on=also_on, log=lambda _: None)
+
+
+def test_condition_labels_are_env_kwargs_flags_a_shell_reads_back():
+    label = shipping.condition_label({"pushes": {"direction": 90}, "dynamics_ranges": "classic"})
+    assert shlex.split(label) == ['pushes={"direction":90}', "dynamics_ranges=classic"]
+
+
+def test_judge_plays_on_the_policys_own_kwargs_with_the_overrides(monkeypatch):
+    """A policy trained with env kwargs (an observation history, a randomization) is judged
+    on them, as evaluate.py plays it, not on the bare registered env."""
+    policy = SimpleNamespace(
+        env_id="MinitaurBulletTrotRandomized-v0",
+        env_kwargs={"history": 4, "pd_latency": 0.003, "max_episode_steps": 50},
+    )
+    played = []
+    monkeypatch.setattr(shipping, "load_policy", lambda *a, **k: policy)
+
+    def play(policy, env_id, env_kwargs, episodes, seed):
+        played.append((env_id, env_kwargs))
+        return [{"return": 1.0, "fell": 0.0, "speed": 1.0}]
+
+    monkeypatch.setattr(shipping, "play", play)
+    shipping.judge(Path("m.zip"), 1, 0, {"pd_latency": 0})
+    shipping.judge(Path("m.zip"), 1, 0)
+    shipping.judge(Path("m.zip"), 1, 0, env=("MinitaurBulletTrot-v0", {"history": 4}))
+    assert played == [
+        ("MinitaurBulletTrotRandomized-v0", {"history": 4, "pd_latency": 0}),
+        ("MinitaurBulletTrotRandomized-v0", {"history": 4, "pd_latency": 0.003}),
+        ("MinitaurBulletTrot-v0", {"history": 4}),
+    ]

@@ -80,6 +80,7 @@ def evaluate(args: argparse.Namespace) -> int:
             format_table,
             load_policy,
             play,
+            playing_kwargs,
             run_episodes,
             summarize,
         )
@@ -105,9 +106,7 @@ def evaluate(args: argparse.Namespace) -> int:
         if isinstance(policy, OnnxPolicy) and not args.deterministic:
             raise UsageError(f"{path} is the deterministic actor; --stochastic needs the zip")
         env_id = args.env or policy.env_id or DEFAULT_ENV
-        # Judge on the registered episode length, whatever the training run used.
-        env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
-        env_kwargs.update(parse_overrides(args.env_kwargs, "--env-kwargs"))
+        env_kwargs = playing_kwargs(policy, parse_overrides(args.env_kwargs, "--env-kwargs"))
         video_path = None
         if args.render_video:
             stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -284,6 +283,7 @@ def ship(args: argparse.Namespace) -> int:
     """python -m minitaur_env.ship: select a policy on unreported seeds, and ship it."""
     try:
         from minitaur_env.training.files import write_text
+        from minitaur_env.training.hyperparams import parse_overrides
         from minitaur_env.training.run_folder import RunFolder
         from minitaur_env.training.shipping import select
         from minitaur_env.training.shipping import ship as ship_policy
@@ -300,6 +300,7 @@ def ship(args: argparse.Namespace) -> int:
             runs, episodes=args.episodes, select_episodes=args.select_episodes,
             select_seed=args.select_seed, report_seed=args.report_seed,
             from_steps=args.from_steps, only_steps=args.steps, final_only=args.final_only,
+            also_on=[parse_overrides(flags, "--also-on") for flags in args.also_on or []],
             trust_pickle=args.trust_pickle,
         )  # fmt: skip
         if args.json:

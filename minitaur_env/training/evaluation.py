@@ -116,6 +116,13 @@ def load_policy(
     )
 
 
+def playing_kwargs(policy: LoadedPolicy | OnnxPolicy, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The env kwargs a policy is judged with: those it was trained with, on the registered
+    episode length whatever the training run used, updated by ``overrides``."""
+    kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
+    return {**kwargs, **overrides}
+
+
 def _normalizer_of(
     model_path: Path, run: RunFolder, config: dict[str, Any], trust_pickle: bool
 ) -> ObservationNormalizer | None:

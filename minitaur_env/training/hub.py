@@ -23,6 +23,7 @@ from minitaur_env.training.evaluation import (
     LoadedPolicy,
     load_policy,
     play,
+    playing_kwargs,
     summarize,
 )
 from minitaur_env.training.files import read_yaml
@@ -75,8 +76,7 @@ def package_for_hub(
     (folder / "env_kwargs.yml").write_text(yaml.safe_dump(policy.env_kwargs))
     export_onnx(policy.path, folder / ONNX_POLICY, trust_pickle)
 
-    # Judged on the registered episode length, whatever the training run used.
-    env_kwargs = {k: v for k, v in policy.env_kwargs.items() if k != "max_episode_steps"}
+    env_kwargs = playing_kwargs(policy, {})
     summary = summarize(play(policy, env_id, env_kwargs, episodes, seed))
     results = {
         "mean_reward": summary["return"]["mean"],

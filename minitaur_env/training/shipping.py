@@ -10,6 +10,7 @@ and nowhere else.
 from __future__ import annotations
 
 import json
+import shlex
 import shutil
 import zipfile
 from collections.abc import Callable
@@ -20,7 +21,7 @@ import numpy as np
 
 from minitaur_env.training import DEFAULT_ENV, UsageError
 from minitaur_env.training.aggregate import RunCurve
-from minitaur_env.training.evaluation import load_policy, play, summarize
+from minitaur_env.training.evaluation import load_policy, play, playing_kwargs, summarize
 from minitaur_env.training.files import read_yaml, write_yaml
 from minitaur_env.training.onnx_export import export_onnx
 from minitaur_env.training.plotting import plot_learning_curve
@@ -35,13 +36,16 @@ def judge(
     model: Path,
     episodes: int,
     seed: int,
-    env_id: str | None = None,
-    env_kwargs: dict | None = None,
+    overrides: dict[str, Any] | None = None,
+    *,
+    env: tuple[str, dict[str, Any]] | None = None,
     live_actor: bool = False,
     trust_pickle: bool = False,
 ) -> dict[str, float]:
     """Mean, std, falls and speed of ``episodes`` deterministic episodes from ``seed``.
 
+    Played as evaluate.py plays it: on the policy's own training env and kwargs, with
+    ``overrides`` changing some of them; or, with ``env`` (id, kwargs), on exactly that.
     ``live_actor``: a model trained with ``actor_ema`` acts with its live actor instead of
     the average, which is the model the same run would have ended with without the
     average (the average does not change training).
@@ -51,14 +55,24 @@ def judge(
         if getattr(policy.model.policy, "averaged_actor", None) is None:
             raise UsageError(f"{model} has no averaged actor (actor_ema) to leave out")
         policy.model.policy.averaged_actor = None
-    env_id = env_id or policy.env_id or DEFAULT_ENV
-    summary = summarize(play(policy, env_id, env_kwargs or {}, episodes, seed))
+    if env is None:
+        env = (policy.env_id or DEFAULT_ENV, playing_kwargs(policy, overrides or {}))
+    summary = summarize(play(policy, *env, episodes, seed))
     return {
         "mean": summary["return"]["mean"],
         "std": summary["return"]["std"],
         "falls": int(summary["fell"]["count"]),
         "speed": summary["speed"]["mean"],
     }
+
+
+def condition_label(overrides: dict[str, Any]) -> str:
+    """``--env-kwargs`` flags, quoted for a shell, that give these overrides, e.g.
+    ``dynamics_ranges=classic pd_latency=0``."""
+    return " ".join(
+        shlex.quote(f"{k}={v if isinstance(v, str) else json.dumps(v, separators=(',', ':'))}")
+        for k, v in overrides.items()
+    )
 
 
 def candidates(run: RunFolder, from_steps: int, only: list[int] | None = None) -> list[Path]:
@@ -79,6 +93,7 @@ def select(
     from_steps: int = 200_000,
     only_steps: list[int] | None = None,
     final_only: bool = False,
+    also_on: list[dict[str, Any]] | None = None,
     trust_pickle: bool = False,
     log: Callable[[str], Any] = print,
 ) -> dict[str, Any]:
@@ -86,17 +101,23 @@ def select(
 
     Candidates: each run's best model, final model and checkpoints from ``from_steps`` on
     (``only_steps``: just those checkpoints; ``final_only``: just the final models, the
-    models the training command ends with). The pick has the fewest falls, then the
-    highest mean; only then is it played on the report seeds. Each run's best and final
-    models are also judged on the report seeds. Returns the whole report.
+    models the training command ends with). Each plays on its own training env and, for
+    each of ``also_on``, on that env with those kwargs changed. The pick has the fewest
+    falls over all of them, then the highest mean averaged over them; only then is it
+    played on the report seeds, under each condition. Each run's best and final models
+    are also judged on the report seeds (own env). Returns the whole report.
     """
+    conditions = {"": {}, **{condition_label(kwargs): kwargs for kwargs in also_on or []}}
+    if len(conditions) != 1 + len(also_on or []):
+        raise UsageError("--also-on: each condition must change the env, and only once")
     select_episodes = episodes if select_episodes is None else select_episodes
     if min(episodes, select_episodes) < 1:
         raise UsageError("--episodes and --select-episodes must be at least 1")
     report: dict[str, Any] = {
         "select_seed": select_seed, "report_seed": report_seed, "episodes": episodes,
-        "select_episodes": select_episodes, "final_only": final_only, "runs": {},
-        "selection": {},
+        "select_episodes": select_episodes, "final_only": final_only,
+        "also_on": {label: kwargs for label, kwargs in conditions.items() if label},
+        "runs": {}, "selection": {},
     }  # fmt: skip
     log(
         f"{select_episodes} deterministic episodes on selection seeds {select_seed}.., "
@@ -115,8 +136,11 @@ def select(
         else:
             found = candidates(run, from_steps, only_steps)
         for model in found:
-            result = judge(model, select_episodes, select_seed, trust_pickle=trust_pickle)
-            report["selection"][str(model)] = result
+            results = {
+                label: judge(model, select_episodes, select_seed, kwargs, trust_pickle=trust_pickle)
+                for label, kwargs in conditions.items()
+            }
+            result = report["selection"][str(model)] = _combined(results)
             log(f"  candidate {model}: {_figures(result)} (selection seeds)")
     if not report["selection"]:
         raise UsageError("no candidate model in " + ", ".join(str(run) for run in runs))
@@ -124,9 +148,16 @@ def select(
         report["selection"],
         key=lambda m: (-report["selection"][m]["falls"], report["selection"][m]["mean"]),
     )
-    reported = judge(Path(chosen), episodes, report_seed, trust_pickle=trust_pickle)
-    report["chosen"] = {"model": chosen, "report": reported}
-    log(f"chosen: {chosen}: {_figures(reported)} on the report seeds")
+    reported = {
+        label: judge(Path(chosen), episodes, report_seed, kwargs, trust_pickle=trust_pickle)
+        for label, kwargs in conditions.items()
+    }
+    report["chosen"] = {"model": chosen, "report": reported.pop("")}
+    if reported:
+        report["chosen"]["also_on"] = reported
+    log(f"chosen: {chosen}: {_figures(report['chosen']['report'])} on the report seeds")
+    for label, result in reported.items():
+        log(f"  with --env-kwargs {label}: {_figures(result)}")
     finals = [r["final"]["mean"] for r in report["runs"].values() if "final" in r]
     bests = [r["best"]["mean"] for r in report["runs"].values() if "best" in r]
     if bests and finals:
@@ -135,7 +166,24 @@ def select(
     return report
 
 
-def _figures(result: dict[str, float]) -> str:
+def _combined(results: dict[str, dict[str, float]]) -> dict[str, Any]:
+    """One candidate's figures over its conditions ("": its own env): falls summed, mean
+    averaged; a single condition's figures as they are."""
+    if len(results) == 1:
+        return results[""]
+    return {
+        "mean": float(np.mean([r["mean"] for r in results.values()])),
+        "falls": sum(r["falls"] for r in results.values()),
+        "conditions": results,
+    }
+
+
+def _figures(result: dict[str, Any]) -> str:
+    if "conditions" in result:
+        each = "; ".join(
+            f"{label or 'own env'}: {_figures(r)}" for label, r in result["conditions"].items()
+        )
+        return f"{result['mean']:6.2f} mean, {result['falls']} falls in all ({each})"
     return (f"{result['mean']:6.2f} ± {result['std']:.2f}, {result['falls']} falls, "
             f"{result['speed']:.2f} m/s")  # fmt: skip
 
@@ -146,6 +194,7 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
     provenance."""
     model = Path(report["chosen"]["model"])
     reported, selected = report["chosen"]["report"], report["selection"][str(model)]
+    also_on = report["chosen"].get("also_on", {})
     episodes, report_seed = report["episodes"], report["report_seed"]
     run, shipped = RunFolder.of_model(model), RunFolder(target)
     config = run.read_config()
@@ -174,6 +223,10 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
         # walking amplify that: the figures must be the shipped file's own, judged as
         # evaluate.py plays it (with the statistics just copied beside it).
         as_trained, reported = reported, judge(shipped.zoo_model, episodes, report_seed)
+        also_on = {
+            label: judge(shipped.zoo_model, episodes, report_seed, kwargs)
+            for label, kwargs in report["also_on"].items()
+        }
     shutil.copyfile(run.evaluations, shipped.evaluations)
     if run.learning_curve.is_file():
         shutil.copyfile(run.learning_curve, shipped.learning_curve)
@@ -196,10 +249,23 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
         "eval_mean_speed_m_per_s": round(reported["speed"], 3),
         "eval_command": f"python evaluate.py --model {shipped.zoo_model} "
                         f"--episodes {episodes}",
+        "eval_also_on": [
+            {
+                "env_kwargs": report["also_on"][label],
+                "mean_return": round(result["mean"], 3), "std_return": round(result["std"], 3),
+                "falls": result["falls"], "mean_speed_m_per_s": round(result["speed"], 3),
+                "command": f"python evaluate.py --model {shipped.zoo_model} "
+                           f"--episodes {episodes} --env-kwargs {label}",
+            }
+            for label, result in also_on.items()
+        ],
         "selection": {
             "rule": "most episodes without a fall, then the highest mean, among "
                     + ("the runs' final models (no checkpoint picking)" if report["final_only"]
                        else "each run's best model, final model and checkpoints")
+                    + (", falls summed and means averaged over its own env and "
+                       + "; ".join(f"--env-kwargs {label}" for label in also_on)
+                       if also_on else "")
                     + " (python -m minitaur_env.ship)",
             "seeds": f"{report['select_seed']}.."
                      f"{report['select_seed'] + report['select_episodes'] - 1}",
@@ -220,6 +286,8 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
                                "training runs (see docs/results.md)",
         },
     }  # fmt: skip
+    if not also_on:
+        del provenance["eval_also_on"]
     if as_trained is not None:
         provenance["exported"] = {
             "how": "trained with SBX (JAX); shipped with the same weights in SB3's format "
