@@ -4,6 +4,7 @@
     python -m minitaur_env.sweep --search space.yml --trials 20 --scheduler asha
     python -m minitaur_env.sweep -f sweeps --name my-sweep --resume   # after Ctrl-C
     python -m minitaur_env.sweep --summarize sweeps/my-sweep          # the table again
+    python -m minitaur_env.sweep --summarize sweeps/a sweeps/a-more-seeds  # one table
     RAY_ADDRESS=head:6379 python -m minitaur_env.sweep -f /shared/sweeps ...   # a cluster
 
 Each trial writes the run folder train.py writes, under ``<-f>/<name>/runs/<trial>/``.
@@ -47,7 +48,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=None,
         help="an existing Ray cluster (default: $RAY_ADDRESS, else local)",
     )
-    add("--summarize", metavar="SWEEP_DIR", help="only print and write a finished sweep's table")
+    add(
+        "--summarize", nargs="+", metavar="SWEEP_DIR",
+        help="only print and write a finished sweep's table; several folders (more seeds "
+        "of one configuration) make one table, written into the first",
+    )  # fmt: skip
     add(
         "--milestones",
         nargs="+",

@@ -117,6 +117,18 @@ def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(
     )  # fmt: skip
     assert again.returncode == 0, again.stderr
     assert f"{row['iqm']:.2f}" in again.stdout and (sweep.folder / "summary.csv").is_file()
+    # More seeds of the configuration from a later sweep make one table with these...
+    later = tmp_path / "later"
+    trial = runs[1].parents[1]  # runs/<trial>/sac/Pendulum-v1_1
+    shutil.copytree(trial, later / "runs" / trial.name)
+    (combined,) = summarize([sweep.folder, later], milestones=(-3000.0, 0.0))
+    assert combined["seeds_done"] == 3
+    assert combined["final_per_seed"] == row["final_per_seed"] + f" {finals[1]:.2f}"
+    # ...but not a run of another config, which would pass for another seed
+    config = later / "runs" / trial.name / "sac" / "Pendulum-v1_1" / "config.yml"
+    config.write_text(config.read_text().replace("learning_starts: 100", "learning_starts: 99"))
+    with pytest.raises(UsageError, match="train different configs .hyperparams."):
+        summarize([sweep.folder, later])
 
 
 def test_a_search_repeats_each_configuration_over_the_seeds_and_asha_stops_on_steps(tmp_path):

@@ -204,7 +204,7 @@ def sweep(args: argparse.Namespace, argv: list[str]) -> int:
     if args.summarize:
         rows = summarize(args.summarize, args.milestones)
         print(format_rows(rows))
-        print(f"summary: {Path(args.summarize) / 'summary.csv'}")
+        print(f"summary: {Path(args.summarize[0]) / 'summary.csv'}")
         return 0
     seeds = seed_list(args.seeds, args.first_seed)
     base = config_from_args(args, save_freq=args.save_freq, vec_env="dummy", device="cpu")

@@ -11,11 +11,16 @@ from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.trial import RUNS, TRIAL_FILE
 
 
-def summarize(folder: str | Path, milestones: Sequence[float] | None = None) -> list[dict]:
+def summarize(
+    folder: str | Path | Sequence[str | Path], milestones: Sequence[float] | None = None
+) -> list[dict]:
     """One row per configuration of a sweep folder; writes summary.csv and curves.png.
 
-    ``milestones``: the returns whose first crossing the rows report (steps, minutes);
-    by default those of :func:`default_milestones` for the sweep's env.
+    Several folders (say, more seeds of one configuration run as a later sweep) make one
+    table, written into the first; a configuration's runs must then train the same
+    config but for the seed. ``milestones``: the returns whose first crossing the rows
+    report (steps, minutes); by default those of :func:`default_milestones` for the
+    sweep's env.
     """
     import gymnasium as gym
 
@@ -27,10 +32,13 @@ def summarize(folder: str | Path, milestones: Sequence[float] | None = None) -> 
         write_csv,
     )
 
-    folder = Path(folder)
-    trials = sorted((folder / RUNS).glob(f"*/{TRIAL_FILE}"))
-    if not trials:
-        raise UsageError(f"{folder} holds no sweep trials ({RUNS}/*/{TRIAL_FILE})")
+    folders = [Path(folder)] if isinstance(folder, (str, Path)) else [Path(f) for f in folder]
+    trials = []
+    for each in folders:
+        found = sorted((each / RUNS).glob(f"*/{TRIAL_FILE}"))
+        if not found:
+            raise UsageError(f"{each} holds no sweep trials ({RUNS}/*/{TRIAL_FILE})")
+        trials += found
     # The trial's run is the one it trains or resumes: the highest-numbered.
     run_of = {path: _newest_run(path.parent) for path in trials}
     env_id = next((run.read_config()["env"] for run in run_of.values() if run is not None), None)
@@ -39,8 +47,19 @@ def summarize(folder: str | Path, milestones: Sequence[float] | None = None) -> 
     if milestones is None:
         milestones = default_milestones(env_id) if env_id is not None else ()
     groups: dict[str, GroupSummary] = {}
+    trained: dict[str, tuple[dict, RunFolder]] = {}  # group: a run's config but its seed
     for trial_file, run in run_of.items():
         trial = read_yaml(trial_file)
+        if run is not None:
+            config = {k: v for k, v in run.read_config().items() if k != "seed"}
+            first = trained.setdefault(trial["group"], (config, run))
+            if config != first[0]:
+                differ = sorted(k for k in config.keys() | first[0].keys()
+                                if config.get(k) != first[0].get(k))  # fmt: skip
+                raise UsageError(
+                    f"{first[1].path} and {run.path} are both {trial['group']!r} but train "
+                    f"different configs ({', '.join(differ)}): summarize them apart"
+                )
         group = groups.setdefault(
             trial["group"], GroupSummary(trial["group"], [], [], tuple(milestones))
         )
@@ -51,9 +70,9 @@ def summarize(folder: str | Path, milestones: Sequence[float] | None = None) -> 
         else:  # interrupted: --resume finishes it
             group.unfinished += 1
     rows = [group.row() for group in groups.values()]
-    write_csv(rows, folder / "summary.csv")
+    write_csv(rows, folders[0] / "summary.csv")
     threshold = gym.spec(env_id).reward_threshold if env_id is not None else None
-    plot_iqm_curves(list(groups.values()), folder / "curves.png", threshold)
+    plot_iqm_curves(list(groups.values()), folders[0] / "curves.png", threshold)
     return rows
 
 
