@@ -6,7 +6,7 @@ per condition, each cell the mean +- std return and the falls over unseen episod
 
 Every cell is what ``python evaluate.py --model M --episodes 20 --seed 12345
 --env MinitaurBulletEnv-v0 --env-kwargs K`` reports, with K the column's keyword
-arguments (printed below the table). The episodes' seeds (12345..) are the docs' report
+arguments (printed below the table). The episodes' seeds (12345..) are the docs'
 report seeds, never used in training or selection; the env is ``MinitaurBulletEnv-v0``
 whatever the policy was trained on, or ``MinitaurBulletTrot-v0`` (the same env under the
 gait prior) for a policy trained with the gait prior, whose actions only it takes. Of the
