@@ -11,7 +11,7 @@ import yaml
 import train
 from minitaur_env.training import Experiment, ExperimentConfig
 from minitaur_env.training.run_folder import RunFolder
-from tests.scripts import REPO
+from tests.scripts import REPO, error_lines, run_main
 
 PENDULUM = [
     "--env", "Pendulum-v1", "-n", "300", "--eval-freq", "0", "--save-freq", "150",
@@ -111,3 +111,91 @@ def test_flags_are_parsed_before_torch_is_imported():
             "train.py: error: torch is not installed; training and evaluation need the train extra"
         )
     )
+
+
+# The `minitaur` console script: one tool, its subcommands, one place for user errors.
+
+
+def test_the_console_script_is_minitaur_env_cli_main():
+    from importlib.metadata import entry_points
+
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == "minitaur"]
+    assert script.value == "minitaur_env.cli:main"
+
+
+def test_minitaur_help_lists_every_subcommand():
+    from minitaur_env.cli import COMMANDS
+
+    shown = subprocess.run([sys.executable, "-m", "minitaur_env.cli", "--help"],
+                           capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert shown.returncode == 0, shown.stderr
+    listed = {line.split()[0] for line in shown.stdout.split("commands:")[1].splitlines()[1:8]}
+    assert listed == set(COMMANDS) == {
+        "train", "evaluate", "sweep", "ship", "package", "onnx", "zoo",
+    }  # fmt: skip
+    typo = subprocess.run([sys.executable, "-m", "minitaur_env.cli", "trian"],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert typo.returncode == 2
+    (line,) = error_lines(typo)  # argparse quotes the choices on some Pythons only
+    assert line.startswith("minitaur: error: argument COMMAND: invalid choice: 'trian'")
+    assert "train" in line and "zoo" in line
+
+
+def test_each_subcommand_answers_help_under_its_own_name(tmp_path):
+    from minitaur_env import cli
+
+    for name in cli.COMMANDS:
+        shown = run_main(cli.main, name, "--help", cwd=tmp_path)
+        assert shown.returncode == 0, (name, shown.stderr)
+        assert shown.stdout.startswith(f"usage: minitaur {name} "), name
+
+
+def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path):
+    from minitaur_env import cli
+
+    cases = {
+        ("evaluate", "--model", "no/such.zip"): "model file not found",
+        ("evaluate", "--episodes", "-1"): "--episodes must be >= 0",
+        ("onnx", "no/such/run"): "no/such/run",
+        ("package", "no/such/run"): "model file not found: no/such/run",
+        ("ship", "no/such/run"): "no/such/run",
+        ("zoo", "no_such_script"): "no_such_script",
+        ("train", "--hyperparams", "learning_rate=fast"): "learning_rate",
+        ("sweep", "--summarize", "no/such/sweep"): "no/such/sweep",
+    }
+    for (name, *argv), expected in cases.items():
+        result = run_main(cli.main, name, *argv, cwd=tmp_path)
+        lines = error_lines(result)
+        assert result.returncode == 2, (name, argv, result.stderr[-2000:])
+        assert len(lines) == 1 and lines[0].startswith(f"minitaur {name}: error: "), lines
+        assert expected in lines[0], lines
+
+
+def test_trust_pickle_is_defined_once_for_every_command():
+    # One definition, so that its warning reads the same in every command.
+    sources = [
+        REPO / "train.py",
+        REPO / "evaluate.py",
+        *REPO.joinpath("minitaur_env").rglob("*.py"),
+    ]
+    defined = [p.name for p in sources if '"--trust-pickle",' in p.read_text()]
+    assert defined == ["cli.py"]
+    from minitaur_env.cli import COMMANDS
+
+    having = {
+        name for name, c in COMMANDS.items() if "--trust-pickle" in c.parser(name).format_help()
+    }
+    assert having == {"train", "evaluate", "ship", "package", "onnx"}
+
+
+def test_minitaur_train_is_train_py_and_records_how_it_was_typed(tmp_path, monkeypatch):
+    from minitaur_env import cli
+
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["train", *PENDULUM, "-f", "cli"]) == 0
+    assert train.main([*PENDULUM, "-f", "script"]) == 0
+    by_cli = RunFolder(tmp_path / "cli" / "sac" / "Pendulum-v1_1")
+    by_script = RunFolder(tmp_path / "script" / "sac" / "Pendulum-v1_1")
+    assert by_cli.read_config() == by_script.read_config()
+    assert by_cli.command.read_text().startswith("minitaur train --env Pendulum-v1")
+    assert by_script.command.read_text().startswith("python train.py --env Pendulum-v1")

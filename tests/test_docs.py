@@ -1,7 +1,8 @@
 """The documentation and the release: the site builds with warnings as errors (and a broken
 reference does fail it), both tutorial notebooks run, the README stays a short entry page
 whose links resolve, and the built wheel, installed into a fresh virtual environment,
-registers the env and carries its hyperparameter files."""
+registers the env, carries its hyperparameter files and runs ``minitaur train``,
+``evaluate`` and ``onnx`` away from the checkout."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.scripts import REPO, needs
+from minitaur_env.training.evaluation import NO_MODEL_HINT
+from tests.scripts import REPO, error_lines, needs
 
 DOCS = REPO / "docs"
 NOTEBOOKS = sorted((DOCS / "tutorials").glob("*.ipynb"))
@@ -120,7 +122,9 @@ def test_slug_matches_githubs_anchors():
     assert slug("Training: `train.py`") == "training-trainpy"
 
 
-def test_the_wheel_installs_into_a_fresh_environment_with_its_data(tmp_path):
+def test_the_wheel_installs_into_a_fresh_environment_and_its_minitaur_command_works_there(
+    tmp_path,
+):
     needs("build"), needs("twine")
     # Build from a copy: building in place would leave build/ and egg-info in the checkout.
     source = tmp_path / "source"
@@ -185,6 +189,35 @@ def test_the_wheel_installs_into_a_fresh_environment_with_its_data(tmp_path):
     shipped = sorted(p.name for p in (REPO / "minitaur_env" / "hyperparams").glob("*.yml"))
     assert ymls == str(shipped) and len(shipped) >= 5
     assert int(n_timesteps) > 0 and shape == "(28,)"
+
+    # The console script, away from the checkout: train, evaluate with a video, export.
+    minitaur = str(venv / "bin" / "minitaur")
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+
+    def minitaur_run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([minitaur, *args], cwd=work, capture_output=True, text=True,
+                              timeout=900, env=clean)  # fmt: skip
+
+    # With no model and no repository around, one line says how to get a shipped policy.
+    nothing = minitaur_run("evaluate")
+    assert nothing.returncode == 2
+    assert error_lines(nothing) == [f"minitaur evaluate: error: {NO_MODEL_HINT}"]
+    trained = minitaur_run("train", "-n", "2000", "--eval-freq", "0", "--progress", "none")
+    assert trained.returncode == 0, trained.stderr[-2000:]
+    run = work / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
+    model = run / "MinitaurBulletEnv-v0.zip"
+    assert model.is_file()
+    assert (run / "command.txt").read_text().startswith("minitaur train -n 2000")
+    shown = minitaur_run("evaluate", "--model", str(model), "--episodes", "1",
+                         "--render-video", "--video-episodes", "1", "--width", "96",
+                         "--height", "72", "--env-kwargs", "max_episode_steps=50")  # fmt: skip
+    assert shown.returncode == 0, shown.stderr[-2000:]
+    (video,) = (work / "videos").glob("*.mp4")
+    assert video.stat().st_size > 1000
+    exported = minitaur_run("onnx", str(run), "-o", "policy.onnx")
+    assert exported.returncode == 0, exported.stderr[-2000:]
+    assert (work / "policy.onnx").stat().st_size > 1000
 
 
 def test_the_layout_page_names_every_module():

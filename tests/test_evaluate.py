@@ -122,7 +122,7 @@ def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
     unknown = subprocess.run([sys.executable, "-m", "minitaur_env.zoo", "no_such_script"],
                              capture_output=True, text=True)  # fmt: skip
     assert error_lines(unknown.stderr) == [
-        "minitaur_env.zoo: rl_zoo3 has no script 'no_such_script'"
+        "python -m minitaur_env.zoo: error: rl_zoo3 has no script 'no_such_script'"
     ]
 
 
@@ -162,7 +162,7 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
     missing = subprocess.run([sys.executable, "-m", "minitaur_env.package", "no/such/run"],
                              cwd=workdir, capture_output=True, text=True)  # fmt: skip
     assert error_lines(missing.stderr) == [
-        "minitaur_env.package: error: model file not found: no/such/run"
+        "python -m minitaur_env.package: error: model file not found: no/such/run"
     ]
 
 
@@ -204,8 +204,8 @@ def test_gui_mode_plays_episodes(workdir, best_model, display):
 def test_default_policy_is_the_best_shipped_one_else_the_latest_run(tmp_path, monkeypatch):
     from minitaur_env.training import evaluation
 
-    shipped = tmp_path / "pretrained"
-    shipped.mkdir()
+    shipped = tmp_path / "checkout" / "pretrained"
+    shipped.mkdir(parents=True)
     for algo, score in (("sac", 3.5), ("ppo", 12.0), ("tqc", 7.0)):
         run = shipped / algo / "MinitaurBulletEnv-v0_1"
         run.mkdir(parents=True)

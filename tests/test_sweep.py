@@ -269,7 +269,7 @@ def test_without_the_ray_extra_the_sweep_says_so_in_one_line():
                             timeout=120)  # fmt: skip
     assert result.returncode == 2
     assert error_lines(result) == [
-        "sweep: error: ray is not installed; sweeps need the ray extra: "
+        "python -m minitaur_env.sweep: error: ray is not installed; sweeps need the ray extra: "
         "pip install 'minitaur-env[ray]'"
     ]
 

@@ -10,60 +10,51 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 from datetime import datetime
 from pathlib import Path
 
-from minitaur_env.training import DEFAULT_ENV, UsageError, env_name, missing_dependency
+from minitaur_env.training import DEFAULT_ENV, UsageError, env_name
 
 
-def train(args: argparse.Namespace, argv: list[str], given: set[str]) -> int:
-    """Create or resume the run the flags describe, run it, and return the exit code."""
-    try:
-        from minitaur_env.training.cli import config_from_args, resume_overrides
-        from minitaur_env.training.experiment import Experiment
-    except ModuleNotFoundError as error:  # the env-only install: no SB3, torch, ...
-        print(missing_dependency("train.py", error), file=sys.stderr)
-        return 1
+def train(args: argparse.Namespace, prog: str, command: str, given: set[str]) -> int:
+    """Create or resume the run the flags describe, run it, and return the exit code.
+
+    ``command`` is the command line the run folder records; ``given``, the flags typed.
+    """
+    from minitaur_env.training.cli import config_from_args, resume_overrides
+    from minitaur_env.training.experiment import Experiment
 
     options = dict(
-        verbose=args.verbose,
-        progress=args.progress,
-        num_threads=args.num_threads,
-        command=shlex.join(["python", "train.py", *argv]),
+        verbose=args.verbose, progress=args.progress, num_threads=args.num_threads, command=command
     )
-    try:
-        if args.resume:
-            experiment = Experiment.resume(
-                args.resume,
-                n_timesteps=args.n_timesteps,
-                overrides=resume_overrides(args, given),
-                device=args.device if "device" in given else None,
-                **options,
-            )
-        else:
-            config = config_from_args(
-                args,
-                seed=args.seed,
-                n_envs=args.n_envs,
-                vec_env=args.vec_env,
-                save_freq=args.save_freq,
-                video_freq=args.video_freq,
-                video_length=args.video_length,
-                device=args.device,
-                tensorboard_log=args.tensorboard_log,
-                trained_agent=args.trained_agent,
-                trust_pickle=args.trust_pickle,
-            )
-            experiment = Experiment.create(config, args.log_folder, **options)
-        result = experiment.run()
-    except UsageError as error:
-        print(f"train.py: error: {error}", file=sys.stderr)
-        return 2
+    if args.resume:
+        experiment = Experiment.resume(
+            args.resume,
+            n_timesteps=args.n_timesteps,
+            overrides=resume_overrides(args, given),
+            device=args.device if "device" in given else None,
+            **options,
+        )
+    else:
+        config = config_from_args(
+            args,
+            seed=args.seed,
+            n_envs=args.n_envs,
+            vec_env=args.vec_env,
+            save_freq=args.save_freq,
+            video_freq=args.video_freq,
+            video_length=args.video_length,
+            device=args.device,
+            tensorboard_log=args.tensorboard_log,
+            trained_agent=args.trained_agent,
+            trust_pickle=args.trust_pickle,
+        )
+        experiment = Experiment.create(config, args.log_folder, **options)
+    result = experiment.run()
     if result.status in ("diverged", "failed"):
-        print(f"train.py: error: {result.message}", file=sys.stderr)
+        print(f"{prog}: error: {result.message}", file=sys.stderr)
     elif result.message:
         print(f"\n{result.message}", file=sys.stderr)
     if result.trained_steps or result.status != "interrupted" or result.checkpoint:
@@ -71,26 +62,22 @@ def train(args: argparse.Namespace, argv: list[str], given: set[str]) -> int:
     return result.exit_code
 
 
-def evaluate(args: argparse.Namespace) -> int:
+def evaluate(args: argparse.Namespace, prog: str) -> int:
     """evaluate.py: statistics of a policy, its video, or the GUI."""
-    try:
-        from minitaur_env.training.evaluation import (
-            OnnxPolicy,
-            find_model,
-            format_table,
-            load_policy,
-            play,
-            playing_kwargs,
-            run_episodes,
-            summarize,
-        )
-        from minitaur_env.training.files import atomic_path, ensure_writable
-        from minitaur_env.training.hyperparams import parse_overrides
-        from minitaur_env.training.single_env import make_env
-        from minitaur_env.training.video import record_video
-    except ModuleNotFoundError as error:  # the env-only install: no yaml, imageio, ...
-        print(missing_dependency("evaluate.py", error), file=sys.stderr)
-        return 1
+    from minitaur_env.training.evaluation import (
+        OnnxPolicy,
+        find_model,
+        format_table,
+        load_policy,
+        play,
+        playing_kwargs,
+        run_episodes,
+        summarize,
+    )
+    from minitaur_env.training.files import atomic_path, ensure_writable
+    from minitaur_env.training.hyperparams import parse_overrides
+    from minitaur_env.training.single_env import make_env
+    from minitaur_env.training.video import record_video
 
     try:
         path = args.model or find_model(
@@ -181,20 +168,14 @@ def evaluate(args: argparse.Namespace) -> int:
                 env.close()
             returns = ", ".join(f"{record['return']:.2f}" for record in shown)
             print(f"gui: {len(shown)} episodes in the PyBullet window, returns {returns}")
-    except UsageError as error:
-        print(f"evaluate.py: error: {error}", file=sys.stderr)
-        return 2
     except RuntimeError as error:  # e.g. the GUI without a display
-        print(f"evaluate.py: error: {error}", file=sys.stderr)
+        print(f"{prog}: error: {error}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("evaluate.py: interrupted", file=sys.stderr)
-        return 130
     return 0
 
 
-def sweep(args: argparse.Namespace, argv: list[str]) -> int:
-    """python -m minitaur_env.sweep: run, resume or summarize a sweep."""
+def sweep(args: argparse.Namespace, command: str, prog: str) -> int:
+    """minitaur sweep: run, resume or summarize a sweep."""
     from minitaur_env.training.aggregate import format_rows
     from minitaur_env.training.cli import config_from_args
     from minitaur_env.training.search_space import load_search_space
@@ -220,14 +201,14 @@ def sweep(args: argparse.Namespace, argv: list[str]) -> int:
         gpus_per_trial=args.gpus_per_trial,
         max_concurrent=args.max_concurrent,
         address=args.address,
-        command=shlex.join(["python", "-m", "minitaur_env.sweep", *argv]),
+        command=command,
     )
     failures = sweep.run(resume=args.resume)
     for line in failures:
         print(line, file=sys.stderr)
     if sweep.unfinished():  # Tune returns normally after Ctrl-C, with the trials cut short
         print(
-            f"sweep interrupted; continue it with: python -m minitaur_env.sweep "
+            f"sweep interrupted; continue it with: {prog} "
             f"-f {sweep.storage} --name {sweep.name} --resume",
             file=sys.stderr,
         )
@@ -239,37 +220,24 @@ def sweep(args: argparse.Namespace, argv: list[str]) -> int:
 
 
 def package(args: argparse.Namespace) -> int:
-    """python -m minitaur_env.package: a Hugging Face Hub model folder, offline."""
+    """minitaur package: a Hugging Face Hub model folder, offline."""
     try:
         from minitaur_env.training.hub import package_for_hub
-
-        folder = package_for_hub(
-            args.run_or_model, args.out, args.env, args.episodes, args.seed, args.video_steps,
-            args.trust_pickle,
-        )  # fmt: skip
-    except UsageError as error:
-        print(f"minitaur_env.package: error: {error}", file=sys.stderr)
-        return 2
     except ImportError as error:
-        print(f"minitaur_env.package: error: {error} (pip install 'minitaur-env[zoo]')",
-              file=sys.stderr)  # fmt: skip
-        return 2
+        raise UsageError(f"{error} (pip install 'minitaur-env[zoo]')") from error
+    folder = package_for_hub(
+        args.run_or_model, args.out, args.env, args.episodes, args.seed, args.video_steps,
+        args.trust_pickle,
+    )  # fmt: skip
     print(f"hub folder: {folder}")
     return 0
 
 
-def export_onnx(args: argparse.Namespace, program: str) -> int:
-    """python -m minitaur_env.onnx: the deterministic actor as one ONNX graph."""
-    try:
-        from minitaur_env.training.onnx_export import export_onnx
-    except ModuleNotFoundError as error:
-        print(missing_dependency(program, error) + " plus onnx and onnxscript", file=sys.stderr)
-        return 1
-    try:
-        info = export_onnx(args.run_or_model, args.output, args.trust_pickle)
-    except UsageError as error:
-        print(f"{program}: error: {error}", file=sys.stderr)
-        return 2
+def export_onnx(args: argparse.Namespace) -> int:
+    """minitaur onnx: the deterministic actor as one ONNX graph."""
+    from minitaur_env.training.onnx_export import export_onnx
+
+    info = export_onnx(args.run_or_model, args.output, args.trust_pickle)
     size = args.output.stat().st_size / 1024
     print(
         f"{args.output}: {info['algo']} actor for {info['env_id']}, {size:.0f} KiB, "
@@ -280,42 +248,35 @@ def export_onnx(args: argparse.Namespace, program: str) -> int:
 
 
 def ship(args: argparse.Namespace) -> int:
-    """python -m minitaur_env.ship: select a policy on unreported seeds, and ship it."""
-    try:
-        from minitaur_env.training.files import write_text
-        from minitaur_env.training.hyperparams import parse_overrides
-        from minitaur_env.training.run_folder import RunFolder
-        from minitaur_env.training.shipping import select
-        from minitaur_env.training.shipping import ship as ship_policy
+    """minitaur ship: select a policy on unreported seeds, and ship it."""
+    from minitaur_env.training.files import write_text
+    from minitaur_env.training.hyperparams import parse_overrides
+    from minitaur_env.training.run_folder import RunFolder
+    from minitaur_env.training.shipping import select
+    from minitaur_env.training.shipping import ship as ship_policy
 
-        select_episodes = args.episodes if args.select_episodes is None else args.select_episodes
-        if min(args.episodes, select_episodes) < 1:
-            raise UsageError("--episodes and --select-episodes must be at least 1")
-        runs = [RunFolder.existing(path) for path in args.runs]
-        if args.ship:  # before the hours of judging: provenance needs each run's commands
-            for run in runs:
-                if not run.command.is_file():
-                    raise UsageError(f"--ship: {run} has no command.txt saying what trained it")
-        report = select(
-            runs, episodes=args.episodes, select_episodes=args.select_episodes,
-            select_seed=args.select_seed, report_seed=args.report_seed,
-            from_steps=args.from_steps, only_steps=args.steps, final_only=args.final_only,
-            also_on=[parse_overrides(flags, "--also-on") for flags in args.also_on or []],
-            trust_pickle=args.trust_pickle,
-        )  # fmt: skip
-        if args.json:
-            write_text(args.json, json.dumps(report, indent=2))
-        if args.ship:
-            provenance = ship_policy(report, args.ship, args.trust_pickle)
-            print(
-                f"shipped: {RunFolder(args.ship).zoo_model}: {provenance['eval_mean_return']:.2f}"
-                f" ± {provenance['eval_std_return']:.2f}, {provenance['eval_falls']} falls on "
-                "the report seeds"
-            )
-    except ModuleNotFoundError as error:
-        print(missing_dependency("python -m minitaur_env.ship", error), file=sys.stderr)
-        return 1
-    except UsageError as error:
-        print(f"minitaur_env.ship: error: {error}", file=sys.stderr)
-        return 2
+    select_episodes = args.episodes if args.select_episodes is None else args.select_episodes
+    if min(args.episodes, select_episodes) < 1:
+        raise UsageError("--episodes and --select-episodes must be at least 1")
+    runs = [RunFolder.existing(path) for path in args.runs]
+    if args.ship:  # before the hours of judging: provenance needs each run's commands
+        for run in runs:
+            if not run.command.is_file():
+                raise UsageError(f"--ship: {run} has no command.txt saying what trained it")
+    report = select(
+        runs, episodes=args.episodes, select_episodes=args.select_episodes,
+        select_seed=args.select_seed, report_seed=args.report_seed,
+        from_steps=args.from_steps, only_steps=args.steps, final_only=args.final_only,
+        also_on=[parse_overrides(flags, "--also-on") for flags in args.also_on or []],
+        trust_pickle=args.trust_pickle,
+    )  # fmt: skip
+    if args.json:
+        write_text(args.json, json.dumps(report, indent=2))
+    if args.ship:
+        provenance = ship_policy(report, args.ship, args.trust_pickle)
+        print(
+            f"shipped: {RunFolder(args.ship).zoo_model}: {provenance['eval_mean_return']:.2f}"
+            f" ± {provenance['eval_std_return']:.2f}, {provenance['eval_falls']} falls on "
+            "the report seeds"
+        )
     return 0

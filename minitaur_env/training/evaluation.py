@@ -27,7 +27,14 @@ if TYPE_CHECKING:
     from minitaur_env.training.safe_load import ObservationNormalizer
 
 REWARD_TERMS = ("reward_forward", "reward_energy", "reward_drift", "reward_shake")
+# The shipped policies live in the repository, not in the wheel: the checkout this package
+# was installed from (pip install -e), else a pretrained/ in the working directory.
 PRETRAINED_DIR = Path(__file__).resolve().parents[2] / "pretrained"
+NO_MODEL_HINT = (
+    "no model given, and no shipped policy (pretrained/) or run (logs/) is here: pass "
+    "--model MODEL.zip, train one with `minitaur train`, or run from a clone of the "
+    "minitaur-env repository, whose pretrained/ folder holds the shipped policies"
+)
 
 
 @dataclasses.dataclass
@@ -179,8 +186,9 @@ def find_model(
     With no log folder: the best shipped policy, else the best model of the most
     recent run under ``logs/``.
     """
-    if log_folder is None:
-        shipped = pretrained_models()
+    implicit = log_folder is None
+    if implicit:
+        shipped = pretrained_models() or pretrained_models(Path("pretrained"))
         if shipped and not (algo or env_id or load_checkpoint or load_last_checkpoint):
             return shipped[0][1]
         log_folder = "logs"
@@ -193,6 +201,8 @@ def find_model(
         elif (root / algo_name).is_dir():
             runs += [run.path for run in RunFolder.found_under(root / algo_name, "*")]
     if not runs:
+        if implicit and not (algo or env_id):
+            raise UsageError(NO_MODEL_HINT)
         raise UsageError(
             f"no trained model found under {root}/ (train one with train.py, or pass --model)"
         )
