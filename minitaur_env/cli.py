@@ -117,6 +117,8 @@ def train_parser(prog: str = "train.py", without_defaults: bool = False) -> argp
 def run_train(args: argparse.Namespace, argv: list[str], prog: str) -> int:
     from minitaur_env.training import commands
 
+    if args.num_threads < 0:
+        raise UsageError("--num-threads must be >= 0 (0: one thread for an MLP)")
     given = given_flags(lambda bare: train_parser(prog, bare), argv)
     return commands.train(args, prog, recorded_command(prog, argv), given)
 
@@ -180,6 +182,8 @@ def run_evaluate(args: argparse.Namespace, argv: list[str], prog: str) -> int:
 
     if args.episodes < 0:
         raise UsageError("--episodes must be >= 0")
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: episode seeds must be >= 0")
     if args.video_episodes < 1:
         raise UsageError("--video-episodes must be >= 1")
     if not (0 < args.width <= 4096 and 0 < args.height <= 4096):
@@ -222,6 +226,7 @@ def sweep_parser(prog: str = "minitaur sweep") -> argparse.ArgumentParser:
     add("-f", "--storage", default="sweeps", help="storage folder, shared on a cluster")
     add("--name", default=None, help="sweep name (default: <algo>-<env>)")
     add("--resume", action="store_true", help="continue the interrupted sweep -f/--name")
+    add_trust_pickle(parser, "when a trial resumes its run: SBX checkpoints, older runs' files")
     add("--address", help="an existing Ray cluster (default: $RAY_ADDRESS, else local)")
     add(
         "--summarize",
@@ -331,6 +336,8 @@ def package_parser(prog: str = "minitaur package") -> argparse.ArgumentParser:
 def run_package(args: argparse.Namespace, argv: list[str], prog: str) -> int:
     from minitaur_env.training import commands
 
+    if args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: episode seeds must be >= 0")
     return commands.package(args)
 
 

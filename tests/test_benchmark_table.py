@@ -78,6 +78,34 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
     assert provenance["training"]["wall_clock_min_to_model"] > 0
 
 
+def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(
+    finished_run, tmp_path, monkeypatch
+):
+    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "kept", cwd=tmp_path)
+    kept = RunFolder(tmp_path / "kept" / "seed3")
+    report = shipping.select([kept], episodes=1, final_only=True)
+    shipped = RunFolder(tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1")
+    shipping.ship(report, shipped.path)
+    before = {p.relative_to(shipped.path): p.read_bytes() for p in shipped.path.rglob("*")
+              if p.is_file()}  # fmt: skip
+    assert shipped.zoo_model.relative_to(shipped.path) in before
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(shipping, "export_onnx", full_disk)  # after the zip is written
+    other = shipping.select([kept], episodes=1, final_only=True, report_seed=777)
+    with pytest.raises(OSError, match="No space left"):
+        shipping.ship(other, shipped.path)
+    after = {p.relative_to(shipped.path): p.read_bytes() for p in shipped.path.rglob("*")
+             if p.is_file()}  # fmt: skip
+    assert after == before  # the old model, its provenance and statistics, as they were
+    assert sorted(p.name for p in shipped.path.parent.iterdir()) == [shipped.path.name]
+    monkeypatch.undo()  # control: the same ship, succeeding, does replace the folder
+    shipping.ship(other, shipped.path)
+    assert yaml.safe_load(shipped.provenance.read_text())["eval_seeds"] == "777..777"
+
+
 def test_a_model_trained_on_from_a_kept_run_names_that_runs_command(finished_run, tmp_path):
     # The shipped PPO came from a kept default run; a model trained on from one (-i) must
     # ship with the kept run's own command and seed (ship() writes origin_of() as its

@@ -158,9 +158,24 @@ def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path):
         ("evaluate", "--episodes", "-1"): "--episodes must be >= 0",
         ("onnx", "no/such/run"): "no/such/run",
         ("package", "no/such/run"): "model file not found: no/such/run",
+        ("package", "no/such/run", "--video-steps", "0"): "--video-steps must be >= 1",
         ("ship", "no/such/run"): "no/such/run",
         ("zoo", "no_such_script"): "no_such_script",
         ("train", "--hyperparams", "learning_rate=fast"): "learning_rate",
+        # What SB3 accepted and ran with a wrong meaning, or failed on after the start:
+        ("train", "--hyperparams", "normalize=maybe"): "normalize='maybe': must be true",
+        ("train", "--hyperparams", "normalize='false'"): "normalize='false': must be true",
+        ("train", "--hyperparams", "normalize=0.5"): "normalize=0.5: must be true",
+        ("train", "--hyperparams", "normalize={foo: 1}"): "mapping of VecNormalize's options",
+        ("train", "--hyperparams", "gradient_steps=0"): "gradient_steps=0: must be an integer",
+        ("train", "--hyperparams", "learning_starts=-5"): "learning_starts=-5: must be an",
+        ("train", "--hyperparams", "n_timesteps=250.9"): "n_timesteps=250.9: must be a whole",
+        ("train", "--hyperparams", "n_timesteps=abc"): "n_timesteps='abc': must be a whole",
+        ("train", "--num-threads", "-1"): "--num-threads must be >= 0",
+        ("train", "--seed", "-1"): "--seed -1: must be an integer in 0..2**32-1",
+        ("train", "--device", "bogus"): "--device 'bogus': not a torch device",
+        ("evaluate", "--seed", "-1"): "--seed -1: episode seeds must be >= 0",
+        ("package", "no/such/run", "--seed", "-1"): "--seed -1: episode seeds must be >= 0",
         ("sweep", "--summarize", "no/such/sweep"): "no/such/sweep",
     }
     for (name, *argv), expected in cases.items():
@@ -169,6 +184,32 @@ def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path):
         assert result.returncode == 2, (name, argv, result.stderr[-2000:])
         assert len(lines) == 1 and lines[0].startswith(f"minitaur {name}: error: "), lines
         assert expected in lines[0], lines
+
+
+def test_a_cuda_device_that_is_not_there_is_refused_not_run_on_the_cpu(tmp_path, monkeypatch):
+    # SB3 would fall back to the CPU while config.yml said cuda.
+    import torch
+
+    from minitaur_env import cli
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    result = run_main(cli.main, "train", "--device", "cuda", cwd=tmp_path)
+    assert result.returncode == 2 and not (tmp_path / "logs").exists()
+    assert error_lines(result) == [
+        "minitaur train: error: --device cuda: torch sees no CUDA device here; use cpu or auto"
+    ]
+
+
+def test_package_without_huggingface_hub_says_so_before_any_work(tmp_path, monkeypatch):
+    from minitaur_env import cli
+
+    monkeypatch.setitem(sys.modules, "huggingface_hub", None)
+    result = run_main(cli.main, "package", "no/such/run", "-o", "hub", cwd=tmp_path)
+    assert result.returncode == 2
+    assert error_lines(result) == [
+        "minitaur package: error: packaging needs huggingface_hub: pip install 'minitaur-env[zoo]'"
+    ]
+    assert not (tmp_path / "hub").exists()
 
 
 def test_trust_pickle_is_defined_once_for_every_command():
@@ -185,7 +226,7 @@ def test_trust_pickle_is_defined_once_for_every_command():
     having = {
         name for name, c in COMMANDS.items() if "--trust-pickle" in c.parser(name).format_help()
     }
-    assert having == {"train", "evaluate", "ship", "package", "onnx"}
+    assert having == {"train", "evaluate", "sweep", "ship", "package", "onnx"}
 
 
 def test_minitaur_train_is_train_py_and_records_how_it_was_typed(tmp_path, monkeypatch):
@@ -199,3 +240,19 @@ def test_minitaur_train_is_train_py_and_records_how_it_was_typed(tmp_path, monke
     assert by_cli.read_config() == by_script.read_config()
     assert by_cli.command.read_text().startswith("minitaur train --env Pendulum-v1")
     assert by_script.command.read_text().startswith("python train.py --env Pendulum-v1")
+
+
+def test_resume_refuses_to_shorten_a_run_below_its_newest_checkpoint(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert train.main([*PENDULUM]) == 0
+    run = RunFolder(tmp_path / "logs" / "sac" / "Pendulum-v1_1")
+    config_before = run.config.read_text()
+    refused = run_main(train.main, "--resume", str(run.path), "-n", "200", cwd=tmp_path)
+    assert refused.returncode == 2
+    assert error_lines(refused) == [
+        f"train.py: error: --resume {run.path} -n 200: its newest checkpoint is at 300 "
+        "steps already; -n is the total to reach"
+    ]
+    assert run.config.read_text() == config_before  # nothing rewritten
+    assert train.main(["--resume", str(run.path), "-n", "450"]) == 0  # control: longer is fine
+    assert run.read_config()["n_timesteps"] == 450

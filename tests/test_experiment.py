@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import re
-import shutil
 
 import gymnasium as gym
 import numpy as np
@@ -27,6 +26,7 @@ from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.files import load_pickle
 from minitaur_env.training.hyperparams import load_hyperparams
+from minitaur_env.training.replay_buffer import load_replay_buffer
 from tests.scripts import needs
 
 SMALL_SAC = {
@@ -266,7 +266,7 @@ def test_run_folder_names_every_file_in_one_place(tmp_path):
     run = RunFolder.create(tmp_path, "sac", "minitaur_env:MinitaurBulletEnv-v0")
     assert run.path == tmp_path / "sac" / "MinitaurBulletEnv-v0_1" and run.number == 1
     assert run.checkpoint(5).name == "rl_model_5_steps.zip"
-    assert run.replay_buffer(5).name == "rl_model_replay_buffer_5_steps.pkl"
+    assert run.replay_buffer(5).name == "rl_model_replay_buffer_5_steps.npz"
     assert run.vecnormalize(5).name == "rl_model_vecnormalize_5_steps.pkl"
     assert run.vecnormalize_beside(run.best_model).name == "best_model_vecnormalize.pkl"
     assert RunFolder.create(tmp_path, "sac", "MinitaurBulletEnv-v0").number == 2
@@ -333,7 +333,9 @@ def test_sbx_weights_are_checked_too():
 def test_a_trained_agent_starts_a_new_run_with_its_weights_statistics_and_buffer(tmp_path):
     first = pendulum(tmp_path, hyperparams={"normalize": True}).run().run
     trained = load_model(SAC, first.zoo_model)
-    shutil.copy(first.replay_buffer(200), first.zoo_model.with_name("replay_buffer.pkl"))
+    load_replay_buffer(trained.replay_buffer, first.replay_buffer(200))
+    stored = trained.replay_buffer.size()
+    trained.save_replay_buffer(first.zoo_model.with_name("replay_buffer.pkl"))  # the zoo's
 
     def started(**settings) -> Experiment:
         experiment = pendulum(tmp_path, hyperparams={"normalize": True}, seed=5, **settings)
@@ -349,7 +351,6 @@ def test_a_trained_agent_starts_a_new_run_with_its_weights_statistics_and_buffer
     saved = load_pickle(first.zoo_vecnormalize)
     np.testing.assert_array_equal(fine_tuned.env.obs_rms.mean, saved.obs_rms.mean)
     assert fresh.env.obs_rms.count < 1  # a fresh run's statistics are empty
-    stored = load_pickle(first.replay_buffer(200)).size()
     assert stored > 100 and fine_tuned.model.replay_buffer.size() == stored
     assert fresh.model.replay_buffer.size() == 0
     # Without --trust-pickle: the same weights and statistics (from the JSON), no buffer.

@@ -1,5 +1,7 @@
-"""The training package's layering: each module imports only modules below it, lazily or not,
-and no module grows past one screenful of concerns (400 lines)."""
+"""The training package's layering: each module imports only modules below it, lazily or not.
+
+(Line caps per module were dropped: they measured lines, not concerns, and code was
+packed with ``# fmt: skip`` to meet them.)"""
 
 from __future__ import annotations
 
@@ -14,7 +16,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "minitaur_env" / "training"
 # placed here, and an import that climbs fails the test.
 LAYERS = [
     {"files", "policies", "progress", "runtime", "single_env", "vec_env", "export"},
-    {"run_folder", "video", "plotting", "algorithms", "envs", "hyperparams", "search_space"},
+    {"run_folder", "video", "plotting", "algorithms", "envs", "hyperparams", "search_space",
+     "replay_buffer"},
     {"aggregate", "safe_load", "results"},
     {"config", "evaluation"},
     {"checkpoints", "onnx_export"},
@@ -68,21 +71,3 @@ def test_the_layer_check_catches_an_upward_import(tmp_path):
     source = "def f():\n    from minitaur_env.training.experiment import Experiment\n"
     (tmp_path / "probe.py").write_text(source)
     assert imported_modules(tmp_path / "probe.py") == {"experiment"}
-
-
-@pytest.mark.parametrize("module", MODULES)
-def test_no_module_is_over_400_lines(module):
-    lines = len((PACKAGE / f"{module}.py").read_text().splitlines())
-    assert lines <= 400, f"{module}.py has {lines} lines"
-
-
-ENV_PACKAGE = PACKAGE.parent
-ENV_MODULES = sorted(path.stem for path in ENV_PACKAGE.glob("*.py"))
-
-
-@pytest.mark.parametrize("module", ENV_MODULES)
-def test_env_modules_stay_small(module):
-    # The env class may take 600 lines: its docstring is the env's reference page.
-    limit = 600 if module == "env" else 400
-    lines = len((ENV_PACKAGE / f"{module}.py").read_text().splitlines())
-    assert lines <= limit, f"{module}.py has {lines} lines"

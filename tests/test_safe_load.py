@@ -200,3 +200,128 @@ def test_packaging_runs_no_code_from_the_files(run, tmp_path):
     assert (folder / "vec_normalize.json").is_file() and (folder / "policy.onnx").is_file()
     card = (folder / "README.md").read_text()
     assert "## Loading models safely" in card and "--trust-pickle" in card
+    # The published pickle is written from the statistics, not copied: whoever loads the
+    # folder with VecNormalize.load runs nothing from the trapped source.
+    published = pickle.loads((folder / "vec_normalize.pkl").read_bytes())
+    assert not marker.exists() and type(published).__name__ == "VecNormalize"
+    source = json.loads(stats.with_suffix(".json").read_text())
+    np.testing.assert_array_equal(published.obs_rms.mean, source["obs_rms"]["mean"])
+    pickle.loads(stats.read_bytes())  # control: the source itself would have run the trap
+    assert marker.read_text() == "ran"
+
+
+@pytest.fixture(scope="module")
+def checkpointed(tmp_path_factory) -> Path:
+    """A run with checkpoints at 60 and 120 steps, to resume."""
+    root = tmp_path_factory.mktemp("checkpointed")
+    result = run_script(
+        "train.py", "-n", "120", *FAST_SAC, "--eval-freq", "0", "--save-freq", "60", *TINY,
+        cwd=root,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
+
+
+def resumed_copy(checkpointed: Path, tmp_path: Path) -> Path:
+    copy = tmp_path / "elsewhere" / checkpointed.name
+    shutil.copytree(checkpointed, copy)
+    return copy
+
+
+def test_resume_runs_no_code_from_the_run_folder(checkpointed, tmp_path):
+    run = resumed_copy(checkpointed, tmp_path)
+    marker = tmp_path / "ran-resume"
+    trap_zip(run / "checkpoints" / "rl_model_120_steps.zip", marker)
+    trap_pickle(run / "checkpoints" / "rl_model_vecnormalize_120_steps.pkl", marker)
+    buffer = run / "checkpoints" / "rl_model_replay_buffer_120_steps.npz"
+    assert buffer.is_file() and not list(run.glob("checkpoints/*replay_buffer*.pkl"))
+    resumed = run_script("train.py", "--resume", str(run), "-n", "240", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "(from 120)" in resumed.stdout and not marker.exists()
+    # The schedule came from the run's config (lin_7.3e-4), not a placeholder: its last
+    # update before the checkpoint at 180 (every 8 steps: at 176 of 240) used 64/240 of it.
+    import torch
+
+    checkpoint = run / "checkpoints" / "rl_model_180_steps.zip"
+    with zipfile.ZipFile(checkpoint) as archive, archive.open("actor.optimizer.pth") as saved:
+        state = torch.load(saved, weights_only=True)
+    assert state["param_groups"][0]["lr"] == pytest.approx(7.3e-4 * 64 / 240)
+    # Control: the same folder, trusted, does unpickle the trapped files.
+    run = resumed_copy(checkpointed, tmp_path / "again")
+    trap_zip(run / "checkpoints" / "rl_model_120_steps.zip", marker)
+    trusted = run_script("train.py", "--resume", str(run), "-n", "180", "--trust-pickle",
+                         cwd=tmp_path)  # fmt: skip
+    assert trusted.returncode == 0, trusted.stderr
+    assert marker.read_text() == "ran"
+
+
+def test_resume_refuses_a_pickled_replay_buffer_unless_trusted(checkpointed, tmp_path):
+    from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
+
+    from minitaur_env.training.replay_buffer import load_replay_buffer
+
+    run = resumed_copy(checkpointed, tmp_path)
+    marker = tmp_path / "ran-buffer"
+    for steps in (60, 120):  # as versions before 0.3 saved them: SB3's pickle
+        arrays = run / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.npz"
+        kind = str(np.load(arrays)["kind"])
+        buffer = {"ReplayBuffer": ReplayBuffer, "NStepReplayBuffer": NStepReplayBuffer}[kind](
+            5000, *spaces_of_the_minitaur()
+        )
+        load_replay_buffer(buffer, arrays)
+        pickled = arrays.with_suffix(".pkl")
+        pickled.write_bytes(pickle.dumps(buffer))
+        trap_pickle(pickled, marker)
+        arrays.unlink()
+    refused = run_script("train.py", "--resume", str(run), "-n", "180", cwd=tmp_path)
+    assert refused.returncode == 2 and not marker.exists()
+    assert error_lines(refused)[-1] == (
+        f"train.py: error: {run / 'checkpoints' / 'rl_model_replay_buffer_120_steps.pkl'}: "
+        "loading this replay buffer would unpickle it, and a pickle can run code from the "
+        "file; pass --trust-pickle if you trust where it came from"
+    )
+    trusted = run_script("train.py", "--resume", str(run), "-n", "180", "--trust-pickle",
+                         cwd=tmp_path)  # fmt: skip
+    assert trusted.returncode == 0, trusted.stderr
+    assert marker.read_text() == "ran" and "(from 120)" in trusted.stdout
+
+
+def spaces_of_the_minitaur():
+    import gymnasium as gym
+
+    import minitaur_env  # noqa: F401
+
+    env = gym.make("MinitaurBulletEnv-v0")
+    try:
+        return env.observation_space, env.action_space
+    finally:
+        env.close()
+
+
+def test_a_replay_buffer_round_trips_as_arrays_and_a_mismatch_is_refused(tmp_path):
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from minitaur_env.training.replay_buffer import load_replay_buffer, save_replay_buffer
+
+    obs, act = spaces.Box(-1, 1, (3,), np.float32), spaces.Box(-1, 1, (2,), np.float32)
+    buffer = ReplayBuffer(7, obs, act)
+    rng = np.random.default_rng(0)
+    for _ in range(9):  # wraps around: full, position 2
+        o = rng.normal(size=(1, 3)).astype(np.float32)
+        buffer.add(o, o + 1, rng.normal(size=(1, 2)), rng.normal(size=1), np.array([False]), [{}])
+    save_replay_buffer(buffer, tmp_path / "buffer.npz")
+    fresh = ReplayBuffer(7, obs, act)
+    load_replay_buffer(fresh, tmp_path / "buffer.npz")
+    assert (fresh.pos, fresh.full) == (2, True)
+    for name in ("observations", "next_observations", "actions", "rewards", "dones"):
+        np.testing.assert_array_equal(getattr(fresh, name), getattr(buffer, name))
+    other = ReplayBuffer(7, spaces.Box(-1, 1, (4,), np.float32), act)
+    with pytest.raises(UsageError, match=r"observations is float32\[7, 1, 3\], the run's"):
+        load_replay_buffer(other, tmp_path / "buffer.npz")
+    assert other.pos == 0 and not other.observations.any()  # left as it was
+    # An array of objects would need a pickle to read: refused, not unpickled.
+    np.savez(tmp_path / "objects.npz", format=np.array([Trap(tmp_path / "m", "0")], dtype=object))
+    with pytest.raises(UsageError, match="not a readable replay buffer"):
+        load_replay_buffer(fresh, tmp_path / "objects.npz")
+    assert not (tmp_path / "m").exists()

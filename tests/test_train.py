@@ -21,6 +21,7 @@ from stable_baselines3 import PPO, SAC
 import train
 from minitaur_env.training import UsageError
 from minitaur_env.training.algorithms import load_model
+from minitaur_env.training.replay_buffer import load_replay_buffer
 from minitaur_env.training.video import read_video
 from tests.scripts import REPO, TINY, error_lines, needs, run_main, run_script, start_script
 
@@ -67,8 +68,8 @@ def test_default_run_leaves_everything_behind(tmp_path):
         "rl_model_160_steps.zip",
         "rl_model_240_steps.zip",
         "rl_model_80_steps.zip",
-        "rl_model_replay_buffer_160_steps.pkl",
-        "rl_model_replay_buffer_240_steps.pkl",
+        "rl_model_replay_buffer_160_steps.npz",  # plain arrays: resuming unpickles nothing
+        "rl_model_replay_buffer_240_steps.npz",
         "rl_model_vecnormalize_160_steps.json",  # pickle-free, for loaders that trust none
         "rl_model_vecnormalize_160_steps.pkl",
         "rl_model_vecnormalize_240_steps.json",
@@ -143,12 +144,22 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
     assert action.shape == (8,)
     (run / "checkpoints" / "rl_model_200_steps.zip").unlink()  # as if killed before it
-    resumed = run_script("train.py", "--resume", str(run), "-n", "250", cwd=tmp_path)
+    # SBX pickles its flax parameters: resuming its checkpoint is the user's choice.
+    refused = run_script("train.py", "--resume", str(run), "-n", "250", cwd=tmp_path)
+    assert refused.returncode == 2 and error_lines(refused)[-1].endswith(
+        "would unpickle it, and a pickle can run code from the file; pass --trust-pickle "
+        "if you trust where it came from"
+    ), refused.stderr
+    resumed = run_script(
+        "train.py", "--resume", str(run), "-n", "250", "--trust-pickle", cwd=tmp_path
+    )
     assert resumed.returncode == 0, resumed.stderr
     assert "for 100 steps (from 150)" in resumed.stdout
     final = load_model(sbx.SAC, run / "MinitaurBulletEnv-v0.zip")
     assert final.num_timesteps == 250
-    final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_250_steps.pkl")
+    load_replay_buffer(
+        final.replay_buffer, run / "checkpoints" / "rl_model_replay_buffer_250_steps.npz"
+    )
     assert final.replay_buffer.size() == 149 + 99  # the 150-step buffer was resumed
     model = str(run / "MinitaurBulletEnv-v0.zip")
     refused = run_script("evaluate.py", "--model", model, "--episodes", "1", cwd=tmp_path)
@@ -206,7 +217,9 @@ def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
     assert resumed_from >= saved - 100  # loses at most --save-freq steps
     final = load_model(SAC, run / "MinitaurBulletEnv-v0.zip")
     assert final.num_timesteps == 600
-    final.load_replay_buffer(run / "checkpoints" / "rl_model_replay_buffer_600_steps.pkl")
+    load_replay_buffer(
+        final.replay_buffer, run / "checkpoints" / "rl_model_replay_buffer_600_steps.npz"
+    )
     # The pre-kill transitions were kept. SB3 checkpoints a step before storing its
     # transition, so each checkpoint (the resumed one, the last one) lacks one.
     assert final.replay_buffer.size() == 600 - 2
@@ -227,7 +240,7 @@ def test_ctrl_c_saves_model_and_replay_buffer(tmp_path, sigint_ignored):
     run = run_dir_of(tmp_path)
     steps = int(stderr.split("rl_model_")[1].split("_steps")[0])
     assert steps > 100
-    assert (run / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.pkl").exists()
+    assert (run / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.npz").exists()
     assert (
         load_model(SAC, run / "checkpoints" / f"rl_model_{steps}_steps.zip").num_timesteps == steps
     )
@@ -324,7 +337,7 @@ def test_sigterm_without_workers_saves_model_and_replay_buffer(tmp_path):
     assert process.returncode == 143, stderr
     steps = int(stderr.split("rl_model_")[1].split("_steps")[0])
     assert (
-        run_dir_of(tmp_path) / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.pkl"
+        run_dir_of(tmp_path) / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.npz"
     ).exists()
 
 

@@ -3,6 +3,7 @@ back only when every file loads, and a trained agent to go on from (``train.py -
 
 from __future__ import annotations
 
+import inspect
 import pickle
 import sys
 import traceback
@@ -18,16 +19,18 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, unwrap_vec_normalize
 
 from minitaur_env.training import TrainingDiverged, UsageError
-from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, load_model
+from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class
 from minitaur_env.training.config import ExperimentConfig
-from minitaur_env.training.files import atomic_path, load_pickle, write_text
+from minitaur_env.training.files import atomic_path, write_text
 from minitaur_env.training.hyperparams import algorithm_kwargs
+from minitaur_env.training.replay_buffer import load_replay_buffer, save_replay_buffer
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.runtime import ignoring_more_signals
 from minitaur_env.training.safe_load import (
+    TRAINING_ONLY,
     TRUST_FLAG,
+    UntrustedPickle,
     adapting_normalizer,
-    attach,
     embed_statistics,
     embedded_statistics,
     load_sb3_model,
@@ -72,8 +75,7 @@ def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:
     steps = model.num_timesteps
     run.checkpoint_dir.mkdir(parents=True, exist_ok=True)
     if isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
-        with atomic_path(run.replay_buffer(steps)) as temp:
-            model.save_replay_buffer(temp)
+        save_replay_buffer(model.replay_buffer, run.replay_buffer(steps))
     normalizer = unwrap_vec_normalize(model.get_env())
     if normalizer is not None:
         save_normalizer(normalizer, run.vecnormalize(steps))
@@ -85,33 +87,68 @@ def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:
 
 def load_newest_checkpoint(
     run: RunFolder,
-    algorithm: type[BaseAlgorithm],
+    config: ExperimentConfig,
     *,
-    normalize: bool,
-    off_policy: bool,
-    device: str = "auto",
+    trust_pickle: bool = False,
     log: Callable[..., Any] = print,
 ) -> tuple[BaseAlgorithm, Callable[[VecEnv], VecNormalize] | None, int]:
     """(model, VecNormalize to wrap the new env in, steps) of the newest complete
     checkpoint: its model, its statistics (if the run normalizes) and its replay buffer (if
     off-policy) all load. Torn or incomplete ones are skipped with a line that says so:
-    going on with an empty buffer or without statistics would silently be another run."""
+    going on with an empty buffer or without statistics would silently be another run.
+
+    Nothing is unpickled unless ``trust_pickle``: the zip's entries go through the safe
+    loader with the run's own hyperparameters, the statistics come from their JSON and the
+    replay buffer from its arrays. A run folder is a file like any other; one from
+    elsewhere could hold a pickle that runs code.
+    """
+    off_policy = config.algo in OFF_POLICY
+    algorithm = algorithm_class(config.algo, config.backend)
     for steps, path in run.checkpoints():
-        if off_policy and not run.replay_buffer(steps).is_file():
-            log(f"skipping checkpoint {path.name}: its replay buffer is missing", file=sys.stderr)
-            continue
+        buffer = run.replay_buffer(steps)
+        if off_policy and not buffer.is_file():
+            if trust_pickle and run.pickled_replay_buffer(steps).is_file():
+                buffer = run.pickled_replay_buffer(steps)
+            elif run.pickled_replay_buffer(steps).is_file():
+                raise UntrustedPickle(run.pickled_replay_buffer(steps), "this replay buffer")
+            else:
+                log(f"skipping checkpoint {path.name}: its replay buffer is missing",
+                    file=sys.stderr)  # fmt: skip
+                continue
         try:
-            model = load_model(algorithm, path, device=device)
-            normalizer = attach(load_pickle(run.vecnormalize(steps))) if normalize else None
-            if off_policy:
-                model.load_replay_buffer(run.replay_buffer(steps))
+            model = load_sb3_model(
+                algorithm, path, trust_pickle, training=True, device=config.device,
+                **resume_kwargs(config, algorithm),
+            )  # fmt: skip
+            normalizer = None
+            if config.normalize:
+                normalizer = training_normalizer(run.vecnormalize(steps), trust_pickle)
+            if off_policy and buffer.suffix == ".npz":
+                load_replay_buffer(model.replay_buffer, buffer)
+            elif off_policy:
+                model.load_replay_buffer(buffer)
             return model, normalizer, steps
-        except UNREADABLE as error:
+        except UntrustedPickle:
+            raise
+        except (*UNREADABLE, UsageError) as error:
             log(f"skipping unreadable checkpoint {path.name}: {error}", file=sys.stderr)
     raise UsageError(
-        f"no complete checkpoint (model{', statistics' if normalize else ''}"
+        f"no complete checkpoint (model{', statistics' if config.normalize else ''}"
         f"{', replay buffer' if off_policy else ''}) in {run.checkpoint_dir}"
     )
+
+
+def resume_kwargs(config: ExperimentConfig, algorithm: type[BaseAlgorithm]) -> dict[str, Any]:
+    """The hyperparameters a checkpoint is loaded with to train on: the run's own, and the
+    algorithm's defaults for the training-only ones the run left unset, which the safe
+    loader does not take from the zip's pickles."""
+    kwargs = algorithm_kwargs(config.hyperparams)
+    kwargs.pop("policy_kwargs", None)  # the saved network keeps its shape
+    defaults = inspect.signature(algorithm.__init__).parameters
+    for key in TRAINING_ONLY:
+        if key not in kwargs and key in defaults:
+            kwargs[key] = defaults[key].default
+    return kwargs
 
 
 def load_trained_agent(
@@ -134,7 +171,9 @@ def load_trained_agent(
         raise UsageError(f"--trained-agent {path} does not fit {config.env}: {message}") from error
     model.num_timesteps = 0  # -n counts this run's steps, as in the zoo
     buffer = RunFolder.replay_buffer_beside(path)
-    if config.algo in OFF_POLICY and buffer.is_file():
+    if config.algo in OFF_POLICY and buffer.with_suffix(".npz").is_file():
+        load_replay_buffer(model.replay_buffer, buffer.with_suffix(".npz"))
+    elif config.algo in OFF_POLICY and buffer.is_file():
         if config.trust_pickle:
             model.load_replay_buffer(buffer)
         else:

@@ -35,6 +35,7 @@ def train(args: argparse.Namespace, prog: str, command: str, given: set[str]) ->
             n_timesteps=args.n_timesteps,
             overrides=resume_overrides(args, given),
             device=args.device if "device" in given else None,
+            trust_pickle=args.trust_pickle,
             **options,
         )
     else:
@@ -202,6 +203,7 @@ def sweep(args: argparse.Namespace, command: str, prog: str) -> int:
         max_concurrent=args.max_concurrent,
         address=args.address,
         command=command,
+        trust_pickle=args.trust_pickle,
     )
     failures = sweep.run(resume=args.resume)
     for line in failures:

@@ -76,8 +76,8 @@ class ExperimentConfig:
             algo=algo,
             env=env,
             config=entry or env,
-            n_timesteps=int(run.get("n_timesteps", 100_000)),
-            n_envs=int(run.get("n_envs", 1)),
+            n_timesteps=_whole_number(run.get("n_timesteps", 100_000), "n_timesteps"),
+            n_envs=_whole_number(run.get("n_envs", 1), "n_envs"),
             normalize=run.get("normalize", False),
             policy=run.get("policy", "MlpPolicy"),
             hyperparams=table,
@@ -103,6 +103,17 @@ class ExperimentConfig:
             raise UsageError("-n/--n-timesteps must be >= 1")
         if self.vec_env not in VEC_ENVS:
             raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENVS)}")
+        if not (isinstance(self.seed, int) and 0 <= self.seed < 2**32):
+            raise UsageError(f"--seed {self.seed}: must be an integer in 0..2**32-1")
+        options = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon"}
+        if not isinstance(self.normalize, (bool, dict)) or (
+            isinstance(self.normalize, dict) and not set(self.normalize) <= options
+        ):
+            raise UsageError(
+                f"--hyperparams normalize={self.normalize!r}: must be true, false or a "
+                f"mapping of VecNormalize's options ({', '.join(sorted(options))})"
+            )
+        _check_device(self.device)
         algorithm_class(self.algo, self.backend)
         algorithm_kwargs(self.hyperparams)
         entropy_decay(self.hyperparams, self.algo, self.backend)
@@ -135,8 +146,36 @@ class ExperimentConfig:
         return config
 
 
+def _whole_number(value: Any, name: str) -> int:
+    """``value`` as an int when it is one (3, 3.0, "3e5"), never by truncating 250.9."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if isinstance(value, bool) or not number.is_integer():
+        raise UsageError(f"{name}={value!r}: must be a whole number")
+    return int(number)
+
+
+def _check_device(device: str) -> None:
+    """SB3 runs a CUDA device that is not there on the CPU, while config.yml would say
+    cuda: refuse instead, as a device torch does not know."""
+    import torch
+
+    try:
+        wanted = torch.device(device) if device != "auto" else None
+    except (RuntimeError, TypeError) as error:
+        raise UsageError(f"--device {device!r}: not a torch device (auto, cpu, cuda)") from error
+    if wanted is not None and wanted.type == "cuda" and not torch.cuda.is_available():
+        raise UsageError(f"--device {device}: torch sees no CUDA device here; use cpu or auto")
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _check_ranges(hyperparams: dict[str, Any]) -> None:
@@ -147,6 +186,11 @@ def _check_ranges(hyperparams: dict[str, Any]) -> None:
                        "an integer >= 1"),
         "gamma": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
         "tau": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+        # -1: as many gradient steps as env steps collected (SB3's convention)
+        "gradient_steps": (lambda v: _is_int(v) and (v >= 1 or v == -1), "an integer >= 1, or -1"),
+        "learning_starts": (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
+        "n_steps": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+        "train_freq": (lambda v: not _is_number(v) or (_is_int(v) and v >= 1), "an integer >= 1"),
     }  # fmt: skip
     for name, (valid, rule) in rules.items():
         if name in hyperparams and not valid(hyperparams[name]):

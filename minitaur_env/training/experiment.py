@@ -28,7 +28,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from minitaur_env.training import TrainingDiverged, UsageError
-from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class
+from minitaur_env.training.algorithms import algorithm_class
 from minitaur_env.training.checkpoints import (
     load_newest_checkpoint,
     load_trained_agent,
@@ -97,6 +97,7 @@ class Experiment:
         self.eval_env: VecEnv | None = None
         self.model: BaseAlgorithm | None = None
         self.resumed_at: int | None = None
+        self.trust_pickle = False  # what resume() may unpickle (-i reads config.trust_pickle)
 
     # -- creating ---------------------------------------------------------------
     @classmethod
@@ -124,9 +125,13 @@ class Experiment:
         n_timesteps: int | None = None,
         overrides: dict[str, Any] | None = None,
         device: str | None = None,
+        trust_pickle: bool = False,
         **options: Any,
     ) -> Experiment:
         """Continue ``run_dir`` from its newest readable checkpoint.
+
+        Its files load without unpickling anything unless ``trust_pickle`` (this
+        session's choice: config.yml's ``trust_pickle`` is a file's word, not the user's).
 
         ``n_timesteps`` extends (or shortens) the run; ``device`` moves it (a checkpoint
         loads on any device). ``overrides`` are settings the
@@ -149,8 +154,12 @@ class Experiment:
         if not run.checkpoints():
             raise UsageError(f"--resume {run.path}: no checkpoint in {run.checkpoint_dir}")
         if n_timesteps is not None:
-            if n_timesteps < 1:
-                raise UsageError("-n/--n-timesteps must be >= 1")
+            reached = run.checkpoints()[0][0]
+            if n_timesteps < reached:
+                raise UsageError(
+                    f"--resume {run.path} -n {n_timesteps}: its newest checkpoint is at "
+                    f"{reached} steps already; -n is the total to reach"
+                )
             config.n_timesteps = n_timesteps
         if device is not None:
             config.device = device
@@ -158,7 +167,9 @@ class Experiment:
         if config.tensorboard_log:
             ensure_writable(Path(config.tensorboard_log))
         run.write_config(config.to_dict())
-        return cls(config, run, resume=True, **options)
+        experiment = cls(config, run, resume=True, **options)
+        experiment.trust_pickle = trust_pickle
+        return experiment
 
     # -- building ---------------------------------------------------------------
     def _algorithm(self) -> type[BaseAlgorithm]:
@@ -208,9 +219,8 @@ class Experiment:
         config = self.config
         if self.resuming:
             model, normalizer, steps = load_newest_checkpoint(
-                self.run_folder, self._algorithm(), normalize=bool(config.normalize),
-                off_policy=config.algo in OFF_POLICY, device=config.device, log=self.log,
-            )  # fmt: skip
+                self.run_folder, config, trust_pickle=self.trust_pickle, log=self.log
+            )
             self.resumed_at = steps
             self.run_folder.rewind_logs(steps, self.log)
             # New episodes after a resume, from the same seed.

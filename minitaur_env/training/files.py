@@ -6,6 +6,7 @@ import contextlib
 import os
 import pickle
 import re
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -35,6 +36,35 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(temp, target)
     finally:
         temp.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def replaced_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A new folder, named as ``path``, that replaces ``path`` only if the block succeeds.
+
+    What is published (a shipped policy, a Hub folder) is written aside and swapped in
+    whole, so that a failure part-way leaves the old folder as it was, never a mix of old
+    and new files. The old folder waits beside the new one until the swap is done.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging_root = Path(tempfile.mkdtemp(prefix=f".{target.name}.new-", dir=target.parent))
+    staged = staging_root / target.name
+    staged.mkdir()
+    try:
+        yield staged
+        aside = staging_root / f"{target.name}.old"
+        had_one = target.exists()
+        if had_one:
+            os.replace(target, aside)
+        try:
+            os.replace(staged, target)
+        except OSError:
+            if had_one:
+                os.replace(aside, target)
+            raise
+    finally:
+        shutil.rmtree(staging_root, ignore_errors=True)
 
 
 class _Loader(yaml.SafeLoader):

@@ -26,7 +26,7 @@ from minitaur_env.training.evaluation import (
     playing_kwargs,
     summarize,
 )
-from minitaur_env.training.files import read_yaml
+from minitaur_env.training.files import read_yaml, replaced_folder
 from minitaur_env.training.run_folder import (
     HUB_VECNORMALIZE,
     ONNX_POLICY,
@@ -54,19 +54,41 @@ def package_for_hub(
     trust_pickle: bool = False,
 ) -> Path:
     """Write ``<out_dir>/<algo>-<env>/`` and return it."""
-    from minitaur_env.training.envs import make_env
-    from minitaur_env.training.onnx_export import export_onnx
-    from minitaur_env.training.video import record_video
-
     if episodes < 1:
         raise UsageError("--episodes must be >= 1: the model card reports an evaluation")
+    if video_steps < 1:
+        raise UsageError("--video-steps must be >= 1: the folder's replay.mp4 shows them")
+    try:  # the model card needs it: say so before the evaluation and the video
+        import huggingface_hub  # noqa: F401
+    except ImportError as error:
+        raise UsageError(
+            "packaging needs huggingface_hub: pip install 'minitaur-env[zoo]'"
+        ) from error
     policy = load_policy(model_of(run_or_model), trust_pickle=trust_pickle)
     env_id = env_id or policy.env_id
     if not env_id:
         raise UsageError(f"{policy.path}: no run config names its env; pass --env")
     name = f"{policy.algo}-{env_name(env_id)}"
-    folder = out_dir / name
-    folder.mkdir(parents=True, exist_ok=True)
+    # Written aside, swapped in whole: a failure leaves an earlier folder as it was.
+    with replaced_folder(out_dir / name) as staged:
+        _write_hub_folder(policy, env_id, staged, name, episodes, seed, video_steps, trust_pickle)
+    return out_dir / name
+
+
+def _write_hub_folder(
+    policy: LoadedPolicy,
+    env_id: str,
+    folder: Path,
+    name: str,
+    episodes: int,
+    seed: int,
+    video_steps: int,
+    trust_pickle: bool,
+) -> None:
+    from minitaur_env.training.envs import make_env
+    from minitaur_env.training.onnx_export import export_onnx
+    from minitaur_env.training.video import record_video
+
     shutil.copyfile(policy.path, folder / f"{name}.zip")
     stats = RunFolder.of_model(policy.path).vecnormalize_for(policy.path)
     if stats is not None:  # the pickle for the zoo and SB3, the JSON for safe loading
@@ -98,7 +120,6 @@ def package_for_hub(
     finally:
         env.close()
     _model_card(policy, env_id, folder, config, results, env_kwargs).save(folder / "README.md")
-    return folder
 
 
 def _commands(training: dict) -> list[str]:

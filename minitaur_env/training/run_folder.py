@@ -28,7 +28,8 @@ EMBEDDED_STATISTICS = "minitaur_env_vecnormalize.json"
 HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's push_to_hub)
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
-_REPLAY_BUFFER = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.pkl$")
+# .npz: plain arrays (replay_buffer.py); .pkl: SB3's pickle, written before 0.3.
+_REPLAY_BUFFER = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.(npz|pkl)$")
 
 
 @dataclasses.dataclass
@@ -241,14 +242,19 @@ class RunFolder:
         return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip"
 
     def replay_buffer(self, steps: int) -> Path:
-        return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.pkl"
+        return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_replay_buffer_{steps}_steps.npz"
+
+    def pickled_replay_buffer(self, steps: int) -> Path:
+        """Where versions before 0.3 saved the buffer, as SB3's pickle."""
+        return self.replay_buffer(steps).with_suffix(".pkl")
 
     def vecnormalize(self, steps: int) -> Path:
         return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
 
     @staticmethod
     def replay_buffer_beside(model: Path) -> Path:
-        """The replay buffer the zoo saves beside a model (``train.py -i`` starts from it)."""
+        """The replay buffer the zoo saves beside a model (``train.py -i`` starts from it):
+        SB3's pickle; ``.with_suffix(".npz")``, the same as plain arrays."""
         return model.with_name("replay_buffer.pkl")
 
     @staticmethod

@@ -15,8 +15,10 @@ from the Hub could therefore run anything when it is evaluated. By default:
 - a pickle with no such sibling, an unknown entry or an SBX zip (its flax parameters are
   pickled) loads only with ``trust_pickle`` (``--trust-pickle``).
 
-``--resume`` still reads a run folder's own pickles (checkpoints, replay buffers): a run
-folder resumed from elsewhere is trusted as the user's own.
+``--resume`` goes the same way: a checkpoint's zip through the safe loader with the
+run's own hyperparameters, its statistics from their JSON and its replay buffer from
+plain arrays (``replay_buffer.py``); SBX checkpoints and older runs' pickled buffers
+load only with ``--trust-pickle``.
 """
 
 from __future__ import annotations
@@ -127,21 +129,38 @@ def embedded_statistics(model_zip: Path) -> dict[str, Any] | None:
 
 
 def copy_statistics(source: Path, target: Path, trust_pickle: bool = False) -> None:
-    """Copy VecNormalize statistics with their JSON sibling; a trusted pickle without
-    one gets it written."""
-    import shutil
-
-    target.parent.mkdir(parents=True, exist_ok=True)
-    if source.is_file():
-        shutil.copyfile(source, target)
+    """Publish VecNormalize statistics as ``target`` (the pickle the zoo's scripts read)
+    and its JSON sibling, both written from the statistics' values: the source pickle's
+    bytes are never copied, so that a pickle that would run code is not handed on to
+    whoever loads the published folder. A pickle without JSON is read only if trusted."""
     if normalizer_json(source).is_file():
-        shutil.copyfile(normalizer_json(source), normalizer_json(target))
+        content = read_normalizer_json(normalizer_json(source))
     elif not trust_pickle:
         raise UntrustedPickle(
             source, f"the VecNormalize statistics (no {normalizer_json(source).name})"
         )
     else:
-        write_normalizer_json(load_pickle(source), normalizer_json(target))
+        content = normalizer_content(load_pickle(source))
+    target.parent.mkdir(parents=True, exist_ok=True)
+    save_normalizer(adapting_normalizer(content)(_SpacesOnly.vec_env(content)), target)
+
+
+class _SpacesOnly:
+    """A VecEnv stand-in with the statistics' observation shape: VecNormalize needs one to
+    exist, and its pickle leaves it out."""
+
+    @staticmethod
+    def vec_env(content: dict[str, Any]) -> Any:
+        import gymnasium as gym
+        from stable_baselines3.common.vec_env import DummyVecEnv
+
+        shape = np.asarray(content["obs_rms"]["mean"]).shape
+
+        class Placeholder(gym.Env):
+            observation_space = spaces.Box(-np.inf, np.inf, shape, np.float32)
+            action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+        return DummyVecEnv([Placeholder])
 
 
 def read_normalizer_json(path: Path) -> dict[str, Any]:

@@ -22,7 +22,7 @@ import numpy as np
 from minitaur_env.training import DEFAULT_ENV, UsageError
 from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.evaluation import load_policy, play, playing_kwargs, summarize
-from minitaur_env.training.files import read_yaml, write_yaml
+from minitaur_env.training.files import read_yaml, replaced_folder, write_yaml
 from minitaur_env.training.onnx_export import export_onnx
 from minitaur_env.training.plotting import plot_learning_curve
 from minitaur_env.training.run_folder import RunFolder
@@ -192,14 +192,30 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
     """Write the report's chosen model as a zoo run folder at ``target``, with its
     statistics, ONNX actor, evaluations, learning curve and provenance.yml. Returns the
     provenance."""
+    config = RunFolder.of_model(Path(report["chosen"]["model"])).read_config()
+    started_from = origin_of(config.get("trained_agent"))  # before shipping may overwrite it
+    # Written aside, swapped in whole: a failure leaves an earlier shipped folder intact.
+    with replaced_folder(target) as staged:
+        return _write_shipped(report, RunFolder(staged), Path(target), config, started_from,
+                              trust_pickle)  # fmt: skip
+
+
+def _write_shipped(
+    report: dict[str, Any],
+    shipped: RunFolder,
+    target: Path,
+    config: dict[str, Any],
+    started_from: dict | None,
+    trust_pickle: bool,
+) -> dict[str, Any]:
+    """``ship``'s files, written into ``shipped`` (the staged folder); the provenance
+    names the files where they will be, under ``target``."""
     model = Path(report["chosen"]["model"])
     reported, selected = report["chosen"]["report"], report["selection"][str(model)]
     also_on = report["chosen"].get("also_on", {})
     episodes, report_seed = report["episodes"], report["report_seed"]
-    run, shipped = RunFolder.of_model(model), RunFolder(target)
-    config = run.read_config()
-    started_from = origin_of(config.get("trained_agent"))  # before shipping may overwrite it
-    shipped.path.mkdir(parents=True, exist_ok=True)
+    run = RunFolder.of_model(model)
+    published_model = target / shipped.zoo_model.name
     trained_backend = config["backend"]
     if trained_backend == "sbx":  # ship the same weights in SB3's format: no JAX needed
         from minitaur_env.training.export import sbx_to_sb3
@@ -247,14 +263,14 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
         "eval_deterministic": True,
         "eval_falls": reported["falls"],
         "eval_mean_speed_m_per_s": round(reported["speed"], 3),
-        "eval_command": f"python evaluate.py --model {shipped.zoo_model} "
+        "eval_command": f"python evaluate.py --model {published_model} "
                         f"--episodes {episodes}",
         "eval_also_on": [
             {
                 "env_kwargs": report["also_on"][label],
                 "mean_return": round(result["mean"], 3), "std_return": round(result["std"], 3),
                 "falls": result["falls"], "mean_speed_m_per_s": round(result["speed"], 3),
-                "command": f"python evaluate.py --model {shipped.zoo_model} "
+                "command": f"python evaluate.py --model {published_model} "
                            f"--episodes {episodes} --env-kwargs {label}",
             }
             for label, result in also_on.items()

@@ -64,6 +64,9 @@ class Sweep:
     max_concurrent: int = 0
     address: str | None = None
     command: str = ""  # how the sweep was launched: each trial's command.txt records it
+    # Whether a trial resuming its run may unpickle the run's files (SBX checkpoints,
+    # runs from before 0.3): this session's --trust-pickle, never a stored setting.
+    trust_pickle: bool = False
 
     @property
     def folder(self) -> Path:
@@ -94,7 +97,8 @@ class Sweep:
         from ray.tune.search.optuna import OptunaSearch
 
         trainable = tune.with_resources(
-            run_trial, {"cpu": self.cpus_per_trial, "gpu": self.gpus_per_trial}
+            tune.with_parameters(run_trial, trust_pickle=self.trust_pickle),
+            {"cpu": self.cpus_per_trial, "gpu": self.gpus_per_trial},
         )
         path = str(self.folder.resolve())
         if resume:

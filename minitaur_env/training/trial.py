@@ -54,8 +54,9 @@ def set_aside_unresumable(folder: Path, algo: str, env_id: str) -> list[Path]:
     return moved
 
 
-def run_trial(trial: dict[str, Any]) -> None:
-    """Ray Tune's function trainable: one configuration, one seed, one run folder."""
+def run_trial(trial: dict[str, Any], trust_pickle: bool = False) -> None:
+    """Ray Tune's function trainable: one configuration, one seed, one run folder;
+    ``trust_pickle``: a resumed run may unpickle its files (the sweep's --trust-pickle)."""
     from ray import tune
 
     import minitaur_env  # noqa: F401  (registers the ids in this worker)
@@ -98,7 +99,7 @@ def run_trial(trial: dict[str, Any]) -> None:
         if earlier:
             command = trial.get("resume_command")
             options["command"] = command + which if command else None
-            experiment = Experiment.resume(earlier[-1].path, **options)
+            experiment = Experiment.resume(earlier[-1].path, trust_pickle=trust_pickle, **options)
         else:
             set_aside_unresumable(folder, config.algo, config.env)
             options["command"] = trial["command"] + which if trial.get("command") else None
