@@ -33,7 +33,12 @@ from minitaur_env.training import (
     UsageError,
     missing_dependency,
 )
-from minitaur_env.training.cli import add_experiment_arguments, given_flags, suppress_defaults
+from minitaur_env.training.cli import (
+    add_env_kwargs,
+    add_experiment_arguments,
+    given_flags,
+    suppress_defaults,
+)
 
 # The modules of the ray extra: a sweep without them names the extra, not the train one.
 SWEEP_MODULES = ("ray", "optuna", "rliable", "arch", "pandas")
@@ -163,7 +168,7 @@ def evaluate_parser(prog: str = "evaluate.py") -> argparse.ArgumentParser:
         help="also the shares of steps with a motor at its torque or velocity limit, and "
         "the foot slip (minitaur_env.realism)",
     )
-    add("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="keyword arguments for the env")
+    add_env_kwargs(parser)
     add("--render-video", action="store_true", help="write an mp4 of --video-episodes episodes")
     add("-o", "--output", type=Path, help="video path (default: videos/<env>_<algo>_<time>.mp4)")
     add("--video-episodes", type=int, default=3, help="episodes in the video (default: 3)")

@@ -212,15 +212,19 @@ def test_package_without_huggingface_hub_says_so_before_any_work(tmp_path, monke
     assert not (tmp_path / "hub").exists()
 
 
-def test_trust_pickle_is_defined_once_for_every_command():
-    # One definition, so that its warning reads the same in every command.
+def test_shared_flags_are_defined_once():
+    # One definition of each, so that it reads and parses the same in every command.
     sources = [
         REPO / "train.py",
         REPO / "evaluate.py",
         *REPO.joinpath("minitaur_env").rglob("*.py"),
     ]
-    defined = [p.name for p in sources if '"--trust-pickle",' in p.read_text()]
-    assert defined == ["cli.py"]
+    for flag, where in [
+        ("--trust-pickle", "minitaur_env/cli.py"),
+        ("--env-kwargs", "minitaur_env/training/cli.py"),
+    ]:
+        defined = [str(p.relative_to(REPO)) for p in sources if f'"{flag}",' in p.read_text()]
+        assert defined == [where], flag
     from minitaur_env.cli import COMMANDS
 
     having = {

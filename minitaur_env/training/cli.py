@@ -36,7 +36,18 @@ def add_experiment_arguments(parser: argparse.ArgumentParser) -> None:
         help="override hyperparameters, as YAML values: "
         "learning_rate=1e-3 'policy_kwargs={net_arch: [64]}'",
     )
-    add("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="keyword arguments for the env")
+    add_env_kwargs(parser)
+
+
+def add_env_kwargs(parser: argparse.ArgumentParser) -> None:
+    """``--env-kwargs KEY=VALUE...``, as training, sweeps and evaluation all take it."""
+    parser.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="keyword arguments for the env, as YAML values: max_episode_steps=500 "
+        "'dynamics_ranges=tan2018'",
+    )
 
 
 def config_from_args(args: argparse.Namespace, **settings: Any) -> Any:
