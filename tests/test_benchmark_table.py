@@ -86,8 +86,9 @@ def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(
     report = shipping.select([kept], episodes=1, final_only=True)
     shipped = RunFolder(tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1")
     shipping.ship(report, shipped.path)
-    before = {p.relative_to(shipped.path): p.read_bytes() for p in shipped.path.rglob("*")
-              if p.is_file()}  # fmt: skip
+    before = {
+        p.relative_to(shipped.path): p.read_bytes() for p in shipped.path.rglob("*") if p.is_file()
+    }
     assert shipped.zoo_model.relative_to(shipped.path) in before
 
     def full_disk(*args, **kwargs):
@@ -97,8 +98,9 @@ def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(
     other = shipping.select([kept], episodes=1, final_only=True, report_seed=777)
     with pytest.raises(OSError, match="No space left"):
         shipping.ship(other, shipped.path)
-    after = {p.relative_to(shipped.path): p.read_bytes() for p in shipped.path.rglob("*")
-             if p.is_file()}  # fmt: skip
+    after = {
+        p.relative_to(shipped.path): p.read_bytes() for p in shipped.path.rglob("*") if p.is_file()
+    }
     assert after == before  # the old model, its provenance and statistics, as they were
     assert sorted(p.name for p in shipped.path.parent.iterdir()) == [shipped.path.name]
     monkeypatch.undo()  # control: the same ship, succeeding, does replace the folder

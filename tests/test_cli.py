@@ -126,15 +126,33 @@ def test_the_console_script_is_minitaur_env_cli_main():
 def test_minitaur_help_lists_every_subcommand():
     from minitaur_env.cli import COMMANDS
 
-    shown = subprocess.run([sys.executable, "-m", "minitaur_env.cli", "--help"],
-                           capture_output=True, text=True, timeout=120)  # fmt: skip
+    shown = subprocess.run(
+        [sys.executable, "-m", "minitaur_env.cli", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert shown.returncode == 0, shown.stderr
     listed = {line.split()[0] for line in shown.stdout.split("commands:")[1].splitlines()[1:8]}
-    assert listed == set(COMMANDS) == {
-        "train", "evaluate", "sweep", "ship", "package", "onnx", "zoo",
-    }  # fmt: skip
-    typo = subprocess.run([sys.executable, "-m", "minitaur_env.cli", "trian"],
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert (
+        listed
+        == set(COMMANDS)
+        == {
+            "train",
+            "evaluate",
+            "sweep",
+            "ship",
+            "package",
+            "onnx",
+            "zoo",
+        }
+    )
+    typo = subprocess.run(
+        [sys.executable, "-m", "minitaur_env.cli", "trian"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert typo.returncode == 2
     (line,) = error_lines(typo)  # argparse quotes the choices on some Pythons only
     assert line.startswith("minitaur: error: argument COMMAND: invalid choice: 'trian'")

@@ -196,8 +196,9 @@ def test_the_wheel_installs_into_a_fresh_environment_and_its_minitaur_command_wo
     work.mkdir()
 
     def minitaur_run(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([minitaur, *args], cwd=work, capture_output=True, text=True,
-                              timeout=900, env=clean)  # fmt: skip
+        return subprocess.run(
+            [minitaur, *args], cwd=work, capture_output=True, text=True, timeout=900, env=clean
+        )
 
     # With no model and no repository around, one line says how to get a shipped policy.
     nothing = minitaur_run("evaluate")
@@ -209,9 +210,22 @@ def test_the_wheel_installs_into_a_fresh_environment_and_its_minitaur_command_wo
     model = run / "MinitaurBulletEnv-v0.zip"
     assert model.is_file()
     assert (run / "command.txt").read_text().startswith("minitaur train -n 2000")
-    shown = minitaur_run("evaluate", "--model", str(model), "--episodes", "1",
-                         "--render-video", "--video-episodes", "1", "--width", "96",
-                         "--height", "72", "--env-kwargs", "max_episode_steps=50")  # fmt: skip
+    shown = minitaur_run(
+        "evaluate",
+        "--model",
+        str(model),
+        "--episodes",
+        "1",
+        "--render-video",
+        "--video-episodes",
+        "1",
+        "--width",
+        "96",
+        "--height",
+        "72",
+        "--env-kwargs",
+        "max_episode_steps=50",
+    )
     assert shown.returncode == 0, shown.stderr[-2000:]
     (video,) = (work / "videos").glob("*.mp4")
     assert video.stat().st_size > 1000

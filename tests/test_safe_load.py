@@ -215,9 +215,17 @@ def checkpointed(tmp_path_factory) -> Path:
     """A run with checkpoints at 60 and 120 steps, to resume."""
     root = tmp_path_factory.mktemp("checkpointed")
     result = run_script(
-        "train.py", "-n", "120", *FAST_SAC, "--eval-freq", "0", "--save-freq", "60", *TINY,
+        "train.py",
+        "-n",
+        "120",
+        *FAST_SAC,
+        "--eval-freq",
+        "0",
+        "--save-freq",
+        "60",
+        *TINY,
         cwd=root,
-    )  # fmt: skip
+    )
     assert result.returncode == 0, result.stderr
     return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
 
@@ -249,8 +257,9 @@ def test_resume_runs_no_code_from_the_run_folder(checkpointed, tmp_path):
     # Control: the same folder, trusted, does unpickle the trapped files.
     run = resumed_copy(checkpointed, tmp_path / "again")
     trap_zip(run / "checkpoints" / "rl_model_120_steps.zip", marker)
-    trusted = run_script("train.py", "--resume", str(run), "-n", "180", "--trust-pickle",
-                         cwd=tmp_path)  # fmt: skip
+    trusted = run_script(
+        "train.py", "--resume", str(run), "-n", "180", "--trust-pickle", cwd=tmp_path
+    )
     assert trusted.returncode == 0, trusted.stderr
     assert marker.read_text() == "ran"
 
@@ -280,8 +289,9 @@ def test_resume_refuses_a_pickled_replay_buffer_unless_trusted(checkpointed, tmp
         "loading this replay buffer would unpickle it, and a pickle can run code from the "
         "file; pass --trust-pickle if you trust where it came from"
     )
-    trusted = run_script("train.py", "--resume", str(run), "-n", "180", "--trust-pickle",
-                         cwd=tmp_path)  # fmt: skip
+    trusted = run_script(
+        "train.py", "--resume", str(run), "-n", "180", "--trust-pickle", cwd=tmp_path
+    )
     assert trusted.returncode == 0, trusted.stderr
     assert marker.read_text() == "ran" and "(from 120)" in trusted.stdout
 

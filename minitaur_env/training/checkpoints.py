@@ -112,14 +112,20 @@ def load_newest_checkpoint(
             elif run.pickled_replay_buffer(steps).is_file():
                 raise UntrustedPickle(run.pickled_replay_buffer(steps), "this replay buffer")
             else:
-                log(f"skipping checkpoint {path.name}: its replay buffer is missing",
-                    file=sys.stderr)  # fmt: skip
+                log(
+                    f"skipping checkpoint {path.name}: its replay buffer is missing",
+                    file=sys.stderr,
+                )
                 continue
         try:
             model = load_sb3_model(
-                algorithm, path, trust_pickle, training=True, device=config.device,
+                algorithm,
+                path,
+                trust_pickle,
+                training=True,
+                device=config.device,
                 **resume_kwargs(config, algorithm),
-            )  # fmt: skip
+            )
             normalizer = None
             if config.normalize:
                 normalizer = training_normalizer(run.vecnormalize(steps), trust_pickle)

@@ -228,9 +228,14 @@ def package(args: argparse.Namespace) -> int:
     except ImportError as error:
         raise UsageError(f"{error} (pip install 'minitaur-env[zoo]')") from error
     folder = package_for_hub(
-        args.run_or_model, args.out, args.env, args.episodes, args.seed, args.video_steps,
+        args.run_or_model,
+        args.out,
+        args.env,
+        args.episodes,
+        args.seed,
+        args.video_steps,
         args.trust_pickle,
-    )  # fmt: skip
+    )
     print(f"hub folder: {folder}")
     return 0
 
@@ -266,12 +271,17 @@ def ship(args: argparse.Namespace) -> int:
             if not run.command.is_file():
                 raise UsageError(f"--ship: {run} has no command.txt saying what trained it")
     report = select(
-        runs, episodes=args.episodes, select_episodes=args.select_episodes,
-        select_seed=args.select_seed, report_seed=args.report_seed,
-        from_steps=args.from_steps, only_steps=args.steps, final_only=args.final_only,
+        runs,
+        episodes=args.episodes,
+        select_episodes=args.select_episodes,
+        select_seed=args.select_seed,
+        report_seed=args.report_seed,
+        from_steps=args.from_steps,
+        only_steps=args.steps,
+        final_only=args.final_only,
         also_on=[parse_overrides(flags, "--also-on") for flags in args.also_on or []],
         trust_pickle=args.trust_pickle,
-    )  # fmt: skip
+    )
     if args.json:
         write_text(args.json, json.dumps(report, indent=2))
     if args.ship:

@@ -75,6 +75,7 @@ class Experiment:
         run: RunFolder,
         *,
         resume: bool = False,
+        trust_pickle: bool = False,
         verbose: int = 0,
         progress: str = "auto",
         num_threads: int = 0,
@@ -97,7 +98,8 @@ class Experiment:
         self.eval_env: VecEnv | None = None
         self.model: BaseAlgorithm | None = None
         self.resumed_at: int | None = None
-        self.trust_pickle = False  # what resume() may unpickle (-i reads config.trust_pickle)
+        # What a resume may unpickle: this session's choice (-i reads config.trust_pickle).
+        self.trust_pickle = trust_pickle
 
     # -- creating ---------------------------------------------------------------
     @classmethod
@@ -167,9 +169,7 @@ class Experiment:
         if config.tensorboard_log:
             ensure_writable(Path(config.tensorboard_log))
         run.write_config(config.to_dict())
-        experiment = cls(config, run, resume=True, **options)
-        experiment.trust_pickle = trust_pickle
-        return experiment
+        return cls(config, run, resume=True, trust_pickle=trust_pickle, **options)
 
     # -- building ---------------------------------------------------------------
     def _algorithm(self) -> type[BaseAlgorithm]:

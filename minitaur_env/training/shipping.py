@@ -196,8 +196,9 @@ def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> di
     started_from = origin_of(config.get("trained_agent"))  # before shipping may overwrite it
     # Written aside, swapped in whole: a failure leaves an earlier shipped folder intact.
     with replaced_folder(target) as staged:
-        return _write_shipped(report, RunFolder(staged), Path(target), config, started_from,
-                              trust_pickle)  # fmt: skip
+        return _write_shipped(
+            report, RunFolder(staged), Path(target), config, started_from, trust_pickle
+        )
 
 
 def _write_shipped(
