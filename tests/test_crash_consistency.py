@@ -18,6 +18,7 @@ import pytest
 from minitaur_env.training import Experiment, ExperimentConfig, UsageError
 from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.run_folder import EMBEDDED_STATISTICS, RunFolder
+from minitaur_env.training.safe_load import embedded_evaluation
 from tests.scripts import REPO, error_lines, run_script
 
 NORMALIZED_SAC = {
@@ -118,14 +119,22 @@ def test_resume_repairs_a_torn_monitor_line_and_an_unreadable_evaluations_file(t
     run = pendulum_run(tmp_path, n_timesteps=200)
     monitor = next(run.monitor_dir.glob("*.monitor.csv"))
     monitor.write_text(monitor.read_text() + "-12.5,20")  # a kill mid-line
+    best_before = embedded_evaluation(run.best_model)
     run.evaluations.write_bytes(b"PK\x03\x04 torn")
     said = []
     resumed = Experiment.resume(run.path, n_timesteps=300, log=lambda *a, **k: said.append(a[0]))
-    assert resumed.run().status == "completed"
+    result = resumed.run()
+    assert result.status == "completed"
     assert any("dropped a partial last line" in line for line in said)
     assert any("evaluations.npz was unreadable" in line for line in said)
     with np.load(run.evaluations) as data:
         assert list(data["timesteps"]) == [300]
+        new_mean = float(data["results"].mean())
+    # The best model was not judged against an empty history: it is the better of the two,
+    # and the summary names the model best_model.zip holds.
+    best_after = embedded_evaluation(run.best_model)
+    assert best_after == max(best_before, (300, new_mean), key=lambda record: record[1])
+    assert result.best_eval == best_after
 
 
 def test_two_processes_never_train_one_run_and_a_killed_one_leaves_no_lock(tmp_path):
@@ -215,6 +224,61 @@ def test_a_kill_after_a_checkpoint_on_an_evaluation_step_loses_no_evaluation(tmp
         assert data["timesteps"].tolist() == [100, 200, 300]
 
 
+def _train_until_killed_after_evaluation(logs: str, step: int) -> None:
+    """Train, and die like a kill -9 right after the evaluation at ``step`` is published,
+    before the checkpoint of the same step."""
+    from minitaur_env.training import callbacks
+
+    publish = callbacks.PublishEvaluations._on_step
+
+    def publish_then_die(self):
+        publish(self)
+        if self.model.num_timesteps == step:
+            os._exit(9)
+        return True
+
+    callbacks.PublishEvaluations._on_step = publish_then_die
+    config = ExperimentConfig.resolve(
+        "sac", "ShortPendulum-v0", hyperparams=NORMALIZED_SAC, n_timesteps=300,
+        eval_freq=100, eval_episodes=1, save_freq=100, vec_env="dummy", device="cpu",
+    )  # fmt: skip
+    Experiment.create(config, logs, verbose=0, progress="none").run()
+    os._exit(0)
+
+
+def progress_steps(run: RunFolder) -> list[float]:
+    """time/total_timesteps of every row of every session's progress CSV, in order."""
+    import csv
+
+    steps = []
+    for progress in sorted(run.path.glob("progress*.csv"), key=lambda p: p.stat().st_mtime):
+        with progress.open() as handle:
+            steps += [float(row["time/total_timesteps"]) for row in csv.DictReader(handle)]
+    return steps
+
+
+def test_a_kill_between_an_evaluation_and_its_checkpoint_leaves_one_history(tmp_path):
+    context = preloaded_forkserver()
+    child = context.Process(target=_train_until_killed_after_evaluation,
+                            args=(str(tmp_path / "logs"), 200))  # fmt: skip
+    child.start()
+    child.join(timeout=600)
+    assert child.exitcode == 9
+    run = RunFolder(tmp_path / "logs" / "sac" / "ShortPendulum-v0_1")
+    assert max(steps for steps, _ in run.checkpoints()) == 100  # the 200 checkpoint never came
+    before = progress_steps(run)
+    assert max(before) > 100  # the abandoned branch logged rows past the checkpoint
+    result = Experiment.resume(run.path, verbose=0).run()
+    assert result.status == "completed"
+    with np.load(run.evaluations) as data:
+        assert data["timesteps"].tolist() == [100, 200, 300]
+    after = progress_steps(run)
+    assert after == sorted(after)  # the abandoned branch's rows are gone: none repeats a step
+    # best_model.zip may be the abandoned branch's 200 model; the summary names what the
+    # file holds, and no later, worse evaluation replaced it.
+    assert result.best_eval == embedded_evaluation(run.best_model)
+
+
 def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path):
     """Fault injection: SIGKILL at random moments (mid-step, mid-checkpoint, mid-eval),
     then resume, 20 times. Children fork from a forkserver that imported the package
@@ -271,3 +335,11 @@ def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path)
     assert SOAK_STEPS - 25 * sessions <= sum(episodes) <= SOAK_STEPS
     assert load_policy(run.best_model, device="cpu").normalizer is not None
     assert load_policy(run.zoo_model, device="cpu").normalizer is not None
+    # Kills between an evaluation and its checkpoint left no abandoned progress row and a best
+    # model whose own record is at least every evaluation the history kept.
+    rows = progress_steps(run)
+    assert rows == sorted(rows)
+    best = embedded_evaluation(run.best_model)
+    with np.load(run.evaluations) as data:
+        assert best[1] >= data["results"].mean(axis=1).max() - 1e-9
+    assert final.best_eval == best

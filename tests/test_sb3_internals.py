@@ -5,6 +5,7 @@ versions these pass on."""
 from __future__ import annotations
 
 import inspect
+import zipfile
 
 import gymnasium as gym
 import numpy as np
@@ -12,6 +13,7 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan
 
 from minitaur_env.training.callbacks import ResumableEvalCallback
+from minitaur_env.training.safe_load import embed_evaluation
 from tests.scripts import needs
 
 
@@ -47,9 +49,23 @@ def test_eval_callback_keeps_the_history_a_resume_restores(tmp_path):
     np.savez(evaluations, timesteps=np.array([10, 20]), results=np.array([[1.0], [3.0]]),
              ep_lengths=np.array([[5], [5]]))  # fmt: skip
     resumed = ResumableEvalCallback(pendulum(), eval_freq=10)
-    resumed.continue_from(evaluations, steps=20, n_envs=1)
+    resumed.continue_from(evaluations, tmp_path / "best_model.zip", steps=20, n_envs=1)
     assert resumed.evaluations_timesteps == [10, 20] and resumed.best_mean_reward == 3.0
     assert resumed.n_calls == 20
+
+
+def test_a_resume_keeps_the_best_models_own_score_when_the_evaluations_lost_it(tmp_path):
+    # evaluations.npz torn (set aside) or rewound past the best model's evaluation: the
+    # best model's zip still says what it scored, so a worse model cannot replace it
+    best_model = tmp_path / "best_model.zip"
+    with zipfile.ZipFile(best_model, "w") as archive:
+        archive.writestr("data", "{}")
+    resumed = ResumableEvalCallback(pendulum(), eval_freq=10)
+    resumed.continue_from(tmp_path / "evaluations.npz", best_model, steps=20, n_envs=1)
+    assert resumed.best_mean_reward == -np.inf  # control: a zip without the record
+    embed_evaluation(best_model, 30, 5.0)
+    resumed.continue_from(tmp_path / "evaluations.npz", best_model, steps=20, n_envs=1)
+    assert resumed.best_mean_reward == 5.0
 
 
 def test_sbx_critic_parameters_are_named_as_the_sb3_export_reads_them():

@@ -20,7 +20,12 @@ from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_env
 from minitaur_env.training.hyperparams import entropy_decay, push_curriculum
 from minitaur_env.training.run_folder import RunFolder
-from minitaur_env.training.safe_load import embed_statistics, save_normalizer
+from minitaur_env.training.safe_load import (
+    embed_evaluation,
+    embed_statistics,
+    embedded_evaluation,
+    save_normalizer,
+)
 from minitaur_env.training.video import record_video
 
 
@@ -218,9 +223,10 @@ class VideoRecorderCallback(BaseCallback):
 
 class PromoteBestModel(BaseCallback):
     """EvalCallback's new-best hook: EvalCallback saved the new best model in the run's
-    staging folder (in place, as SB3 does); this embeds the statistics in it and moves it
-    over ``best_model.zip`` in one ``os.replace``, then writes the statistics' zoo copies
-    beside it. A kill at any point leaves the previous best model whole."""
+    staging folder (in place, as SB3 does); this embeds the statistics and the evaluation
+    that made it the best in it and moves it over ``best_model.zip`` in one
+    ``os.replace``, then writes the statistics' zoo copies beside it. A kill at any point
+    leaves the previous best model whole, with its own score."""
 
     def __init__(self, run: RunFolder) -> None:
         super().__init__()
@@ -231,6 +237,8 @@ class PromoteBestModel(BaseCallback):
         normalizer = self.model.get_vec_normalize_env()
         if normalizer is not None:
             embed_statistics(staged, normalizer)
+        evaluation = self.parent  # EvalCallback sets best_mean_reward before calling us
+        embed_evaluation(staged, evaluation.num_timesteps, evaluation.best_mean_reward)
         os.replace(staged, self.run.best_model)
         if normalizer is not None:
             # The zoo's enjoy --load-best reads <env>/vecnormalize.pkl, as the zoo itself
@@ -263,14 +271,19 @@ class ResumableEvalCallback(EvalCallback):
     new SB3 renames them.
     """
 
-    def continue_from(self, evaluations: Path, steps: int, n_envs: int) -> None:
+    def continue_from(self, evaluations: Path, best_model: Path, steps: int, n_envs: int) -> None:
         if evaluations.exists():
             with np.load(evaluations) as data:
                 self.evaluations_timesteps = list(data["timesteps"])
                 self.evaluations_results = [list(r) for r in data["results"]]
                 self.evaluations_length = [list(r) for r in data["ep_lengths"]]
-            means = [np.mean(r) for r in self.evaluations_results]
-            self.best_mean_reward = float(max(means)) if means else -np.inf
+        means = [float(np.mean(r)) for r in self.evaluations_results]
+        # The best model's own record counts too: the evaluations may have been torn, or
+        # rewound past the evaluation that saved it, and a worse model must not replace it.
+        recorded = embedded_evaluation(best_model) if best_model.is_file() else None
+        if recorded is not None:
+            means.append(recorded[1])
+        self.best_mean_reward = max(means, default=-np.inf)
         # EvalCallback counts its calls from 0; continue the run's count so that
         # evaluations stay on multiples of eval_freq, as before the stop.
         self.n_calls = steps // n_envs

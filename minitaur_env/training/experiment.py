@@ -285,7 +285,9 @@ class Experiment:
                 verbose=self.verbose,
             )
             if self.resuming:
-                evaluation.continue_from(run.evaluations, self.resumed_at or 0, config.n_envs)
+                evaluation.continue_from(
+                    run.evaluations, run.best_model, self.resumed_at or 0, config.n_envs
+                )
             callbacks.append(evaluation)
         if config.save_freq:
             # After the evaluation of the same step: a checkpoint at step N then has N's

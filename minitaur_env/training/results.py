@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.safe_load import embedded_evaluation
 
 
 @dataclasses.dataclass
@@ -56,7 +57,8 @@ class RunResult:
         return "\n".join(lines)
 
     def read_evaluations(self, env_id: str) -> None:
-        """Fill ``last_eval`` and ``best_eval`` from evaluations.npz and draw the curve."""
+        """Fill ``last_eval`` and ``best_eval`` from evaluations.npz (the best model's own
+        record where its zip holds one) and draw the curve."""
         import gymnasium as gym
 
         from minitaur_env.training.plotting import plot_learning_curve
@@ -72,6 +74,8 @@ class RunResult:
         best = int(np.argmax(means))
         self.last_eval = (int(steps[-1]), float(means[-1]), float(results[-1].std()))
         self.best_eval = (int(steps[best]), float(means[best]))
+        if run.best_model.is_file():
+            self.best_eval = embedded_evaluation(run.best_model) or self.best_eval
         plot_learning_curve(
             run.evaluations,
             run.learning_curve,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import os
 import re
@@ -25,6 +26,9 @@ PROVENANCE_FILE = "provenance.yml"
 ONNX_POLICY = "policy.onnx"  # the deterministic actor, in shipped and Hub folders
 # A member of our model zips: the VecNormalize statistics the model was saved with (JSON).
 EMBEDDED_STATISTICS = "minitaur_env_vecnormalize.json"
+# A member of best_model.zip: the evaluation that made it the best (steps, mean return).
+# It travels in the zip so that the model and its score are replaced as one file.
+EMBEDDED_EVALUATION = "minitaur_env_evaluation.json"
 HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's push_to_hub)
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
@@ -327,8 +331,8 @@ class RunFolder:
         """Forget evaluations and training episodes logged after env step ``steps``.
 
         A resume restarts from a checkpoint, so what the killed session logged after it
-        belongs to a branch that no longer exists; kept, it would repeat steps and
-        evaluations. An episode still running at the checkpoint is dropped too, and so is
+        belongs to a branch that no longer exists; kept, it would repeat steps, evaluations
+        and progress rows. An episode still running at the checkpoint is dropped too, and so is
         what a kill tore: an unreadable evaluations.npz, a monitor's partial last line
         (each with a line saying so). Every rewrite replaces its file atomically.
         """
@@ -346,6 +350,8 @@ class RunFolder:
                 if not kept.all():
                     with atomic_path(self.evaluations) as temp:
                         np.savez(temp, **{key: value[kept] for key, value in logged.items()})
+        for progress in sorted(self.path.glob("progress*.csv")):
+            self._rewind_progress(progress, steps)
         for monitor in sorted(self.monitor_dir.glob("*.monitor.csv")):
             lines = monitor.read_text().splitlines(True)
             if lines and not lines[-1].endswith("\n"):
@@ -362,6 +368,29 @@ class RunFolder:
             kept = [text for i, text in enumerate(monitor.read_text().splitlines(True))
                     if i not in lines]  # fmt: skip
             write_text(monitor, "".join(kept))
+
+    @staticmethod
+    def _rewind_progress(progress: Path, steps: int) -> None:
+        """Drop SB3's CSV rows logged after ``steps`` (and a row a kill tore)."""
+        lines = progress.read_text().splitlines(True)
+        if not lines:
+            return
+        header = next(csv.reader(lines[:1]))
+        if "time/total_timesteps" not in header:
+            return
+        column = header.index("time/total_timesteps")
+        kept = [lines[0]]
+        for line in lines[1:]:
+            row = next(csv.reader([line]), [])
+            if line.endswith("\n") and len(row) == len(header):
+                try:
+                    logged_at = float(row[column] or 0)
+                except ValueError:
+                    continue
+                if logged_at <= steps:
+                    kept.append(line)
+        if len(kept) < len(lines):
+            write_text(progress, "".join(kept))
 
     def monitor_episodes(self) -> list[MonitorEpisode]:
         """Every finished training episode of the monitor files, with its session.

@@ -37,7 +37,11 @@ from gymnasium import spaces
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.files import load_pickle
-from minitaur_env.training.run_folder import EMBEDDED_STATISTICS, normalizer_json
+from minitaur_env.training.run_folder import (
+    EMBEDDED_EVALUATION,
+    EMBEDDED_STATISTICS,
+    normalizer_json,
+)
 
 TRUST_FLAG = "--trust-pickle"
 # Modules whose classes a zip may name as its policy or replay buffer.
@@ -126,6 +130,26 @@ def embedded_statistics(model_zip: Path) -> dict[str, Any] | None:
             return _checked(json.loads(archive.read(EMBEDDED_STATISTICS)), model_zip)
     except (zipfile.BadZipFile, OSError, ValueError) as error:
         raise UsageError(f"{model_zip}: not a readable model file ({error})") from error
+
+
+def embed_evaluation(model_zip: Path, steps: int, mean_reward: float) -> None:
+    """Record in a best model's zip the evaluation that made it the best."""
+    with zipfile.ZipFile(model_zip, "a") as archive:
+        record = {"timesteps": int(steps), "mean_reward": float(mean_reward)}
+        archive.writestr(EMBEDDED_EVALUATION, json.dumps(record))
+
+
+def embedded_evaluation(model_zip: Path) -> tuple[int, float] | None:
+    """(steps, mean return) of the evaluation recorded in a best model's zip, or None
+    where the zip records none (saved before 0.3, or not a best model)."""
+    try:
+        with zipfile.ZipFile(model_zip) as archive:
+            if EMBEDDED_EVALUATION not in archive.namelist():
+                return None
+            record = json.loads(archive.read(EMBEDDED_EVALUATION))
+        return int(record["timesteps"]), float(record["mean_reward"])
+    except (zipfile.BadZipFile, OSError, ValueError, KeyError, TypeError) as error:
+        raise UsageError(f"{model_zip}: not a readable best model ({error})") from error
 
 
 def copy_statistics(source: Path, target: Path, trust_pickle: bool = False) -> None:
