@@ -630,3 +630,18 @@ def test_a_failure_whose_checkpoint_cannot_be_written_names_the_last_good_one(
     assert "no new checkpoint (OSError" in result.message
     assert f"last one {result.run.checkpoint(50)}" in result.message  # from before the failure
     assert not result.run.checkpoint(77).exists()
+    assert f"(resume with --resume {result.run.path})" in result.message
+
+
+def test_a_failure_that_leaves_no_checkpoint_does_not_promise_a_resume(tmp_path, monkeypatch):
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    experiment = pendulum(tmp_path, callbacks=[RaisesAt(OSError(28, "disk full"), 77)], save_freq=0)
+    from minitaur_env.training import checkpoints
+
+    monkeypatch.setattr(checkpoints, "save_checked_checkpoint", disk_full)
+    result = experiment.run()
+    assert result.status == "failed" and not result.run.checkpoints()
+    assert "--resume" not in result.message
+    assert "no checkpoint to resume from: start the run again" in result.message

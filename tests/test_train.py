@@ -360,16 +360,23 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
     args = ["-n", "100", *FAST_SAC, "--eval-freq", "0", "--save-freq", "50", *TINY]
     assert run_script("train.py", *args, cwd=tmp_path).returncode == 0
     run = str(run_dir_of(tmp_path))
+    written = [run_dir_of(tmp_path) / name for name in
+               ("config.yml", "command.txt", "MinitaurBulletEnv-v0/args.yml",
+                "MinitaurBulletEnv-v0/config.yml")]  # fmt: skip
+    before = [path.read_bytes() for path in written]
     for flags, message in (
         (["--seed", "3"], "seed 3 contradicts the run's saved seed 0"),
         (["--hyperparams", "batch_size=64"], "hyperparams.batch_size 64 contradicts"),
         (["--env-kwargs", "energy_weight=0.1"], "env_kwargs.energy_weight 0.1 contradicts"),
         (["--config", "tutorial"], "--config cannot be combined with --resume"),
+        (["-n", "50"], "-n 50: its newest checkpoint is at 100"),
     ):
         refused = run_main(train.main, "--resume", run, *flags, cwd=tmp_path)
         assert refused.returncode == 2 and error_lines(refused) == [
             line for line in error_lines(refused) if message in line
         ], refused.stderr
+        # a refused resume leaves the run's settings as they were
+        assert [path.read_bytes() for path in written] == before, flags
     extended = run_script(
         "train.py", "--resume", run, "-n", "150", "--seed", "0", "--num-threads", "1",
         "-v", "0", cwd=tmp_path,

@@ -238,6 +238,7 @@ def save_after_failure(
     go on."""
     said = " ".join(str(error).split())
     what = (said if isinstance(error, EnvWorkerError) else f"{type(error).__name__}: {said}")[:400]
+    how = f"resume with --resume {run.path}"
     with ignoring_more_signals():
         try:
             checkpoint: Path | None = save_checked_checkpoint(model, run)
@@ -248,9 +249,11 @@ def save_after_failure(
             kept = f"no new checkpoint ({type(save_error).__name__}: {save_error})" + (
                 f", last one {last[0][1]}" if last else ""
             )
+            if not last:
+                how = "no checkpoint to resume from: start the run again once that is fixed"
         try:
             write_text(run.failure_log, "".join(traceback.format_exception(error)))
             details = f"; details in {run.failure_log}"
         except OSError:
             details = ""
-    return checkpoint, f"{what}; {kept} (resume with --resume {run.path}){details}"
+    return checkpoint, f"{what}; {kept} ({how}){details}"
