@@ -335,3 +335,77 @@ def test_a_replay_buffer_round_trips_as_arrays_and_a_mismatch_is_refused(tmp_pat
     with pytest.raises(UsageError, match="not a readable replay buffer"):
         load_replay_buffer(fresh, tmp_path / "objects.npz")
     assert not (tmp_path / "m").exists()
+
+
+def valid_statistics() -> dict:
+    from minitaur_env.training.safe_load import normalizer_content
+
+    class Stats:  # what normalizer_content reads from a VecNormalize
+        def __init__(self, shape):
+            self.mean, self.var, self.count = np.zeros(shape), np.ones(shape), 10.0
+
+    class Normalizer:
+        norm_obs, norm_reward, clip_obs, clip_reward, gamma, epsilon = (
+            True,
+            True,
+            10.0,
+            10.0,
+            0.99,
+            1e-8,
+        )
+        obs_rms, ret_rms = Stats((28,)), Stats(())
+
+    return normalizer_content(Normalizer())
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        (lambda c: c["obs_rms"].update(mean=[0.0] * 27), "mean has shape (27,) but var (28,)"),
+        (lambda c: c["obs_rms"]["var"].__setitem__(3, -1.0), "var has negative entries (-1)"),
+        (lambda c: c["obs_rms"]["mean"].__setitem__(0, float("nan")), "must be finite"),
+        (lambda c: c["ret_rms"].update(count=0.0), "ret_rms: count 0.0"),
+        (lambda c: c["obs_rms"].pop("count"), "needs mean, var and count"),
+        (lambda c: c["obs_rms"].update(var="ones"), "mean and var must be numbers"),
+        (lambda c: c.update(epsilon=-1e-8), "epsilon -1e-08"),
+    ],
+)
+def test_statistics_that_would_normalize_wrongly_are_refused_in_one_line(tmp_path, change, problem):
+    from minitaur_env.training.safe_load import read_normalizer_json
+
+    path = tmp_path / "vecnormalize.json"
+    content = valid_statistics()
+    path.write_text(json.dumps(content))
+    read_normalizer_json(path)  # control: as written, they load
+    change(content)
+    path.write_text(json.dumps(content))
+    with pytest.raises(UsageError) as refused:
+        read_normalizer_json(path)
+    assert problem in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_statistics_of_another_observation_shape_are_refused_at_load_and_resume(
+    checkpointed, run, tmp_path
+):
+    short = valid_statistics()
+    short["obs_rms"].update(mean=[0.0] * 27, var=[1.0] * 27)
+    model = run / "MinitaurBulletEnv-v0.zip"
+    with zipfile.ZipFile(model) as source:
+        members = {n: source.read(n) for n in source.namelist()}
+    members[EMBEDDED_STATISTICS] = json.dumps(short).encode()
+    with zipfile.ZipFile(model, "w") as target:
+        for name, data in members.items():
+            target.writestr(name, data)
+    played = evaluate("--model", str(model), cwd=tmp_path)
+    assert error_lines(played) == [
+        f"evaluate.py: error: {model}: its VecNormalize statistics are for observations of "
+        "shape (27,), the model's are (28,)"
+    ], played.stderr
+    resumable = resumed_copy(checkpointed, tmp_path)
+    statistics = resumable / "checkpoints" / "rl_model_vecnormalize_120_steps.json"
+    statistics.write_text(json.dumps(short))
+    resumed = run_script("train.py", "--resume", str(resumable), "-n", "240", cwd=tmp_path)
+    assert resumed.returncode == 2 and error_lines(resumed) == [
+        f"train.py: error: {statistics}: its VecNormalize statistics for obs_rms have shape "
+        "(27,), the env's are (28,)"
+    ], resumed.stderr

@@ -202,7 +202,7 @@ def trained_agent_normalizer(config: ExperimentConfig) -> Callable[[VecEnv], Vec
             f"{'true' if found else 'false'}"
         )
     if embedded is not None:
-        return adapting_normalizer(embedded)
+        return adapting_normalizer(embedded, model)
     if path is None:
         return None
     return training_normalizer(path, config.trust_pickle)

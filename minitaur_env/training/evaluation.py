@@ -84,7 +84,7 @@ def load_policy(
         raise UsageError(f"model file not found: {model_path}")
     try:
         from minitaur_env.training.algorithms import algorithm_class, infer_algo
-        from minitaur_env.training.safe_load import load_sb3_model
+        from minitaur_env.training.safe_load import check_statistics_fit, load_sb3_model
     except ModuleNotFoundError as error:
         exported = RunFolder(model_path.parent).onnx_policy
         alternative = (
@@ -112,6 +112,8 @@ def load_policy(
     except (zipfile.BadZipFile, ValueError, KeyError, EOFError, pickle.PickleError) as error:
         raise UsageError(f"cannot load {model_path} as a {algo} model: {error}") from error
     normalizer = _normalizer_of(model_path, run, config, trust_pickle)
+    if normalizer is not None:
+        check_statistics_fit(normalizer, model.observation_space.shape, model_path)
     return LoadedPolicy(
         model=model,
         algo=algo,

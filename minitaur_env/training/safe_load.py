@@ -166,7 +166,7 @@ def copy_statistics(source: Path, target: Path, trust_pickle: bool = False) -> N
     else:
         content = normalizer_content(load_pickle(source))
     target.parent.mkdir(parents=True, exist_ok=True)
-    save_normalizer(adapting_normalizer(content)(_SpacesOnly.vec_env(content)), target)
+    save_normalizer(adapting_normalizer(content, source)(_SpacesOnly.vec_env(content)), target)
 
 
 class _SpacesOnly:
@@ -196,11 +196,54 @@ def read_normalizer_json(path: Path) -> dict[str, Any]:
 
 
 def _checked(content: Any, source: Path) -> dict[str, Any]:
+    """The statistics as read, refused in one line where they could not be VecNormalize's:
+    a mean and variance of different shapes, a negative or non-finite variance, a count
+    or epsilon that is not positive (each would normalize silently wrong)."""
     missing = [k for k in ("norm_obs", "clip_obs", "epsilon", "obs_rms", "ret_rms")
                if not isinstance(content, dict) or k not in content]  # fmt: skip
     if missing:
         raise UsageError(f"{source}: not VecNormalize statistics (no {', '.join(missing)})")
+    for name in ("obs_rms", "ret_rms"):
+        problem = _statistics_problem(content[name])
+        if problem:
+            raise UsageError(f"{source}: not VecNormalize statistics ({name}: {problem})")
+    for name in ("epsilon", "clip_obs"):
+        if not _positive(content[name]):
+            raise UsageError(f"{source}: not VecNormalize statistics ({name} {content[name]!r})")
     return content
+
+
+def _positive(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < np.inf
+
+
+def _statistics_problem(rms: Any) -> str:
+    """What is wrong with one running mean/variance, or ''."""
+    if not isinstance(rms, dict) or not {"mean", "var", "count"} <= set(rms):
+        return "needs mean, var and count"
+    try:
+        mean = np.asarray(rms["mean"], dtype=np.float64)
+        var = np.asarray(rms["var"], dtype=np.float64)
+    except (TypeError, ValueError):
+        return "mean and var must be numbers"
+    if mean.shape != var.shape:
+        return f"mean has shape {mean.shape} but var {var.shape}"
+    if not (np.isfinite(mean).all() and np.isfinite(var).all()):
+        return "mean and var must be finite"
+    if (var < 0).any():
+        return f"var has negative entries ({var.min():g})"
+    if not _positive(rms["count"]):
+        return f"count {rms['count']!r}"
+    return ""
+
+
+def check_statistics_fit(normalizer: ObservationNormalizer, shape: tuple, source: Path) -> None:
+    """Refuse statistics whose mean is not the shape of the observations they normalize."""
+    if normalizer.norm_obs and normalizer.mean.shape != tuple(shape):
+        raise UsageError(
+            f"{source}: its VecNormalize statistics are for observations of shape "
+            f"{normalizer.mean.shape}, the model's are {tuple(shape)}"
+        )
 
 
 def frozen_normalizer(content: dict[str, Any]) -> ObservationNormalizer:
@@ -240,11 +283,12 @@ def training_normalizer(pickle_path: Path, trust_pickle: bool = False) -> Callab
         if not trust_pickle:
             raise UntrustedPickle(pickle_path, f"the VecNormalize statistics (no {sibling.name})")
         return attach(load_pickle(pickle_path))
-    return adapting_normalizer(read_normalizer_json(sibling))
+    return adapting_normalizer(read_normalizer_json(sibling), sibling)
 
 
-def adapting_normalizer(content: dict[str, Any]) -> Callable[[Any], Any]:
-    """``training_normalizer`` from statistics already read (a JSON file, a model zip)."""
+def adapting_normalizer(content: dict[str, Any], source: Path) -> Callable[[Any], Any]:
+    """``training_normalizer`` from statistics already read from ``source`` (a JSON file,
+    a model zip)."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     def wrap(venv: Any) -> Any:
@@ -255,6 +299,11 @@ def adapting_normalizer(content: dict[str, Any]) -> Callable[[Any], Any]:
         )  # fmt: skip
         for name in ("obs_rms", "ret_rms"):
             rms, saved = getattr(normalizer, name), content[name]
+            if np.shape(saved["mean"]) != rms.mean.shape:
+                raise UsageError(
+                    f"{source}: its VecNormalize statistics for {name} have shape "
+                    f"{np.shape(saved['mean'])}, the env's are {rms.mean.shape}"
+                )
             rms.mean = np.asarray(saved["mean"], dtype=np.float64).reshape(rms.mean.shape)
             rms.var = np.asarray(saved["var"], dtype=np.float64).reshape(rms.var.shape)
             rms.count = float(saved["count"])
