@@ -74,7 +74,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     | 24-27 | base orientation quaternion (x, y, z, w) | | +-1.01 |
 
     With ``observation_noise_stdev > 0`` each entry gets ``N(0, stdev)`` times its
-    classic bound (pi, 167.7, 5.7, 1) added.
+    classic bound (pi, 167.7, 5.7, 1) added, and saturates at the space's bounds (the
+    classic env let noisy observations leave its own space).
 
     With ``observation="imu"``, ``Box((12,), float32)``: the motor angles (0-7, rad,
     +-2 pi), the base's roll and pitch (8-9, rad, +-pi) and its roll and pitch rates in

@@ -131,6 +131,9 @@ def observe(
 
     ``noise_stdev`` is relative to the classic bounds (to pi for the "imu" observation's
     motor angles); the draws come from ``rng`` in a fixed order, so a seed fixes them.
+    A noisy reading saturates at the observation space's bounds, as a sensor's range does:
+    the classic env let noise carry observations outside its own space (a torque at its
+    limit plus noise), which a policy or a space check then sees as impossible input.
     """
 
     def imu_errors(euler: np.ndarray, rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -149,7 +152,10 @@ def observe(
         if with_imu_errors:
             euler, rates = imu_errors(euler, rates)
         rates = np.clip(rates, -GYRO_LIMIT, GYRO_LIMIT)
-        return np.concatenate([angles, euler[:2], rates[:2]]).astype(np.float32)
+        observed = np.concatenate([angles, euler[:2], rates[:2]])
+        if noise_stdev > 0 or with_imu_errors:
+            observed = np.clip(observed, -IMU_OBSERVATION_BOUND, IMU_OBSERVATION_BOUND)
+        return observed.astype(np.float32)
     state = reading[:OBSERVATION_SIZE]
     if with_imu_errors:
         euler, _ = imu_errors(quaternion_to_euler(state[QUATERNION]), np.zeros(3))
@@ -158,4 +164,6 @@ def observe(
         state = state + (
             rng.normal(scale=noise_stdev, size=OBSERVATION_SIZE) * CLASSIC_OBSERVATION_BOUND
         )
+    if noise_stdev > 0 or with_imu_errors:
+        state = np.clip(state, -OBSERVATION_BOUND, OBSERVATION_BOUND)
     return state.astype(np.float32)

@@ -108,6 +108,38 @@ def test_observations_are_float32_and_inside_the_space_under_violent_actions(env
                 break
 
 
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"observation_noise_stdev": 0.01},
+        {"observation_noise_stdev": 0.01, "observation": "imu", "imu_noise_stdev": 0.05,
+         "imu_bias": 0.05},
+        {"observation_noise_stdev": 0.3},
+    ],
+    ids=["classic-noise", "imu-noise-and-bias", "heavy-noise"],
+)  # fmt: skip
+def test_noisy_observations_saturate_at_the_space_bounds(kwargs):
+    # The classic env added noise after its bounds: a torque at its limit plus noise left
+    # the space (165 of 300 observations at 0.01). A noisy reading now saturates there.
+    env = MinitaurBulletEnv(**kwargs)
+    rng = np.random.default_rng(1)
+    obs, _ = env.reset(seed=0)
+    observations, action = [obs], np.zeros(8)
+    for step in range(300):
+        if step % 10 == 0:
+            action = np.sign(rng.uniform(-1, 1, 8))
+        obs, _, terminated, _, _ = env.step(action.astype(np.float32))
+        observations.append(obs)
+        if terminated:
+            obs, _ = env.reset()
+    env.close()
+    outside = [o for o in observations if not env.observation_space.contains(o)]
+    assert not outside, outside[0]
+    at_bound = np.isclose(np.abs(observations), env.observation_space.high).any(axis=1)
+    if kwargs["observation_noise_stdev"] == 0.3:  # control: noise that reaches the bounds
+        assert at_bound.mean() > 0.5
+
+
 # -- seeding ---------------------------------------------------------------------------
 
 
