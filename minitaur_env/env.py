@@ -210,6 +210,11 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self.self_collision = boolean("self_collision", self_collision)
         self.on_rack = boolean("on_rack", on_rack)
         self.hard_reset = boolean("hard_reset", hard_reset)
+        if dynamics_ranges is not None and not self.randomize_dynamics:
+            raise ValueError(
+                "dynamics_ranges has no effect with randomize_dynamics=False (the dynamics "
+                "stay classic); drop one of them"
+            )
         self.dynamics_ranges = DynamicsRanges.coerce(dynamics_ranges)
         self.reward_weights = RewardWeights(
             distance_weight, energy_weight, drift_weight, shake_weight

@@ -31,6 +31,7 @@ RANGE_BOUNDS: dict[str, tuple[float, float, str]] = {
 }
 POSITIVE_RANGES = {"base_mass_scale", "leg_mass_scale", "inertia_scale", "battery_voltage"}
 MAX_PUSH_FORCE = 10_000.0  # N
+MIN_PUSH_INTERVAL = 0.01  # s, one classic control step
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,7 +223,9 @@ class Pushes:
         high = number("Pushes.force high", high, 0, MAX_PUSH_FORCE, unit="N")
         if low > high:
             raise ValueError(f"Pushes.force must be (low, high) with low <= high, got {self.force}")
-        interval = number("Pushes.interval", self.interval, 0, 600, low_open=True, unit="s")
+        # A push at most every classic control step: shorter intervals are a constant
+        # force, not pushes (one at every physics step for 1e-9).
+        interval = number("Pushes.interval", self.interval, MIN_PUSH_INTERVAL, 600, unit="s")
         duration = number("Pushes.duration", self.duration, 0, 600, low_open=True, unit="s")
         if duration > interval:
             raise ValueError(

@@ -19,6 +19,9 @@ from minitaur_env.randomization import Pushes
 
 CLASSIC_CONTROL_STEP = 0.01  # s, one action at 100 Hz
 MAX_CONTROL_STEP = 0.1  # s; a larger value is almost surely milliseconds
+# s; shorter, "position" control (one physics step per control step) would get no solver
+# iteration (the classic budget is 300 per 10 ms) and the motor models' 2 ms step no fit.
+MIN_CONTROL_STEP = 0.001
 MAX_LATENCY = 1.0  # s
 MAX_IMU_ERROR = 1.0  # rad
 
@@ -27,7 +30,7 @@ MAX_IMU_ERROR = 1.0  # rad
 class Realism:
     """What the classic env leaves ideal, after Tan et al. 2018; the defaults are classic.
 
-    - ``control_time_step`` (0.01 s, at most 0.1): the control step, a multiple of the
+    - ``control_time_step`` (0.01 s, 0.001 to 0.1): the control step, a multiple of the
       2 ms physics step (with "position" motor control, the physics step itself). The
       return sums per-step rewards, so it grows with the time 1000 steps last.
     - ``control_latency`` (0 s, at most 1): observations are this old, interpolated
@@ -57,8 +60,8 @@ class Realism:
     def __post_init__(self) -> None:
         checked = {
             "control_time_step": number(
-                "control_time_step", self.control_time_step, 0, MAX_CONTROL_STEP,
-                low_open=True, unit="s",
+                "control_time_step", self.control_time_step, MIN_CONTROL_STEP,
+                MAX_CONTROL_STEP, unit="s",
             ),
             "control_latency": number(
                 "control_latency", self.control_latency, 0, MAX_LATENCY, unit="s"

@@ -385,11 +385,22 @@ def test_step_before_reset_raises(env):
         ({"action_repeat": 0}, "action_repeat"),
         ({"distance_limit": -1.0}, "distance_limit"),
         ({"observation_noise_stdev": -0.1}, "observation_noise_stdev"),
+        # accepted before without a word: 0 solver iterations, a push at every physics step,
+        # ranges that nothing draws from
+        ({"control_time_step": 1e-300}, r"control_time_step must be .*\[0.001, 0.1\]"),
+        ({"pushes": {"interval": 1e-9, "duration": 1e-9}}, r"Pushes.interval must be"),
+        ({"dynamics_ranges": "tan2018", "randomize_dynamics": False}, "has no effect with"),
     ],
 )
 def test_invalid_arguments_fail_at_construction(kwargs, message):
     with pytest.raises(ValueError, match=message):
         MinitaurBulletEnv(**kwargs)
+
+
+def test_the_smallest_accepted_settings_build(env):  # control of the three cases above
+    MinitaurBulletEnv(control_time_step=0.001, motor_control="position").close()
+    MinitaurBulletEnv(pushes={"interval": 0.01, "duration": 0.002}).close()
+    MinitaurBulletEnv(dynamics_ranges="tan2018").close()
 
 
 def test_unknown_argument_fails_at_construction():
