@@ -456,6 +456,9 @@ def run(name: str, argv: list[str] | None = None, prog: str | None = None) -> in
     except UsageError as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # the machine's, not the user's: a full disk, a read-only folder
+        print(f"{prog}: error: {' '.join(str(error).split())}", file=sys.stderr)
+        return 1
     except ModuleNotFoundError as error:  # an install without the extra this command needs
         if name == "sweep" and error.name in SWEEP_MODULES:
             print(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import shutil
 import subprocess
 import sys
 
@@ -202,6 +203,32 @@ def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path):
         assert result.returncode == 2, (name, argv, result.stderr[-2000:])
         assert len(lines) == 1 and lines[0].startswith(f"minitaur {name}: error: "), lines
         assert expected in lines[0], lines
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_any_work(tmp_path):
+    from minitaur_env import cli
+
+    shipped = tmp_path / "runs" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(REPO / "pretrained" / "ppo" / shipped.name, shipped)
+    (shipped / "command.txt").write_text("python train.py --algo ppo\n")
+    (tmp_path / "a-file").write_text("not a folder")
+    cases = {
+        ("onnx", str(shipped), "-o", "a-file/policy.onnx"): "cannot write to a-file",
+        ("package", str(shipped), "-o", "a-file/hub"): "cannot write to a-file/hub",
+        # before 22 s of judging, which then failed on the folder's name
+        ("ship", str(shipped), "--ship", "out/my-walker"): (
+            "--ship out/my-walker: a shipped folder is named as the zoo names run folders, "
+            "<env>_<N>, e.g. out/MinitaurBulletEnv-v0_1"
+        ),
+        ("ship", str(shipped), "--ship", "a-file/MinitaurBulletEnv-v0_1"): "cannot write to a-file",
+    }
+    for (name, *argv), expected in cases.items():
+        result = run_main(cli.main, name, *argv, cwd=tmp_path)
+        assert result.returncode == 2, (name, argv, result.stderr[-2000:])
+        lines = error_lines(result)
+        assert len(lines) == 1 and lines[0].startswith(f"minitaur {name}: error: "), lines
+        assert expected in lines[0], lines
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file", "runs"]  # nothing written
 
 
 def test_a_cuda_device_that_is_not_there_is_refused_not_run_on_the_cpu(tmp_path, monkeypatch):

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 import os
+import resource
+import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +18,7 @@ from stable_baselines3 import PPO
 
 import evaluate
 from minitaur_env.training.video import read_video
-from tests.scripts import TINY, error_lines, needs, run_main, run_script
+from tests.scripts import REPO, TINY, error_lines, needs, run_main, run_script
 
 SHORT = ["--env-kwargs", "max_episode_steps=30"]
 
@@ -179,6 +182,50 @@ def test_render_video_writes_mp4_and_gif(workdir, best_model):
     assert frames.std() > 10
     assert (workdir / "clips" / "run.gif").read_bytes().startswith(b"GIF8")
     assert [p.name for p in (workdir / "clips").iterdir() if p.name.startswith(".")] == []
+
+
+def limited_file_size(limit_bytes: int) -> Callable[[], None]:
+    """A subprocess preexec that makes every file write past ``limit_bytes`` fail (EFBIG),
+    as a full disk does, for the process and the ffmpeg it starts."""
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # fail the write instead of killing
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return limit
+
+
+def test_a_video_that_cannot_be_written_whole_is_one_line_and_no_file(workdir, best_model):
+    clips = workdir / "full-disk"
+    args = [sys.executable, str(REPO / "evaluate.py"), "--model", str(best_model),
+            "--episodes", "0", "--render-video", "-o", str(clips / "run.mp4"),
+            "--video-episodes", "1", "--env-kwargs", "max_episode_steps=200"]  # fmt: skip
+    played = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=300,
+                            preexec_fn=limited_file_size(20_000))  # fmt: skip
+    assert played.returncode == 1 and error_lines(played) == [
+        line for line in error_lines(played)
+        if line.startswith(f"evaluate.py: error: {clips / 'run.mp4'}: the video")
+    ] and error_lines(played), played.stderr  # fmt: skip
+    assert list(clips.iterdir()) == []  # neither a truncated mp4 nor a temporary file
+    # control: the same command with room on the disk
+    written = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=300)
+    assert written.returncode == 0 and (clips / "run.mp4").stat().st_size > 20_000
+
+
+def test_a_quietly_truncated_video_replaces_nothing(tmp_path, monkeypatch):
+    # ffmpeg on a full disk can also exit 0 with a short file: the frames read back decide
+    from minitaur_env import MinitaurBulletEnv
+    from minitaur_env.training import video
+
+    target = tmp_path / "clip.mp4"
+    target.write_bytes(b"the previous video")
+    env = MinitaurBulletEnv(render_mode="rgb_array", width=64, height=48)
+    monkeypatch.setattr(video, "_frames_in", lambda path: 3)
+    with pytest.raises(OSError, match=r"clip.mp4: the video came out with 3 of 10 frames"):
+        video.record_video(env, lambda obs: np.zeros(8, np.float32), target, max_steps=20)
+    env.close()
+    assert target.read_bytes() == b"the previous video"
+    assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
 
 
 def test_default_video_name_goes_to_videos(workdir, best_model):

@@ -187,6 +187,21 @@ def test_video_recording_does_not_change_training(tmp_path):
         assert np.array_equal(pa.numpy(), pb.numpy()), name
 
 
+def test_a_videos_folder_that_cannot_be_written_costs_the_videos_not_the_run(tmp_path):
+    (tmp_path / "videos").write_text("a file where the shared videos folder would go")
+    filmed = run_script(
+        "train.py", "-n", "150", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0", *TINY,
+        "--video-freq", "60", "--video-length", "10", cwd=tmp_path,
+    )  # fmt: skip
+    assert filmed.returncode == 0, filmed.stderr
+    skipped = [line for line in filmed.stderr.splitlines() if "skipped" in line]
+    assert [line.split(":")[0] for line in skipped] == [
+        "video at step 60 skipped", "video at step 120 skipped"
+    ]  # fmt: skip
+    model = load_model(SAC, run_dir_of(tmp_path) / "MinitaurBulletEnv-v0.zip")
+    assert model.num_timesteps == 150  # the run went on to its end
+
+
 def _wait_for(path_glob, root, timeout=600):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -190,7 +191,14 @@ class VideoRecorderCallback(BaseCallback):
     def _on_step(self) -> bool:
         if self.num_timesteps - self._last_video_step >= self.video_freq:
             self._last_video_step = self.num_timesteps
-            self.record(self.run_videos_dir / f"{self.name_prefix}-step-{self.num_timesteps}.mp4")
+            path = self.run_videos_dir / f"{self.name_prefix}-step-{self.num_timesteps}.mp4"
+            try:
+                self.record(path)
+            except OSError as error:
+                # A video is a view of the run, not the run: a full or read-only videos
+                # folder costs this video, not the training.
+                said = " ".join(str(error).split())
+                print(f"video at step {self.num_timesteps} skipped: {said}", file=sys.stderr)
         return True
 
     def record(self, path: Path) -> Path:

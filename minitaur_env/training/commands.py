@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from datetime import datetime
@@ -227,6 +228,9 @@ def package(args: argparse.Namespace) -> int:
         from minitaur_env.training.hub import package_for_hub
     except ImportError as error:
         raise UsageError(f"{error} (pip install 'minitaur-env[zoo]')") from error
+    from minitaur_env.training.files import ensure_writable
+
+    ensure_writable(args.out)  # before the episodes and the video
     folder = package_for_hub(
         args.run_or_model,
         args.out,
@@ -242,8 +246,10 @@ def package(args: argparse.Namespace) -> int:
 
 def export_onnx(args: argparse.Namespace) -> int:
     """minitaur onnx: the deterministic actor as one ONNX graph."""
+    from minitaur_env.training.files import ensure_writable
     from minitaur_env.training.onnx_export import export_onnx
 
+    ensure_writable(args.output.parent)
     info = export_onnx(args.run_or_model, args.output, args.trust_pickle)
     size = args.output.stat().st_size / 1024
     print(
@@ -256,7 +262,7 @@ def export_onnx(args: argparse.Namespace) -> int:
 
 def ship(args: argparse.Namespace) -> int:
     """minitaur ship: select a policy on unreported seeds, and ship it."""
-    from minitaur_env.training.files import write_text
+    from minitaur_env.training.files import ensure_writable, write_text
     from minitaur_env.training.hyperparams import parse_overrides
     from minitaur_env.training.run_folder import RunFolder
     from minitaur_env.training.shipping import select
@@ -266,10 +272,20 @@ def ship(args: argparse.Namespace) -> int:
     if min(args.episodes, select_episodes) < 1:
         raise UsageError("--episodes and --select-episodes must be at least 1")
     runs = [RunFolder.existing(path) for path in args.runs]
-    if args.ship:  # before the hours of judging: provenance needs each run's commands
-        for run in runs:
+    if args.ship:  # before the hours of judging
+        for run in runs:  # provenance needs each run's commands
             if not run.command.is_file():
                 raise UsageError(f"--ship: {run} has no command.txt saying what trained it")
+        names = sorted({run.env_name for run in runs})
+        # The zoo finds a run folder's files by its name, <env>_<N>.
+        if not re.fullmatch(rf"({'|'.join(map(re.escape, names))})_\d+", args.ship.name):
+            raise UsageError(
+                f"--ship {args.ship}: a shipped folder is named as the zoo names run folders, "
+                f"<env>_<N>, e.g. {args.ship.parent / (names[0] + '_1')}"
+            )
+        ensure_writable(args.ship.parent)
+    if args.json:
+        ensure_writable(args.json.parent)
     report = select(
         runs,
         episodes=args.episodes,

@@ -124,7 +124,7 @@ def export_onnx(run_or_model: Path, output: Path, trust_pickle: bool = False) ->
     if loaded.backend == "sbx":
         raise UsageError(
             f"{model_path} is an SBX (JAX) model: export it to PyTorch first "
-            "(benchmarks/select_policy.py --ship does), then to ONNX"
+            "(minitaur ship does), then to ONNX"
         )
     actor = DeterministicActor(loaded).eval()
     obs_dim = actor.obs_mean.shape[0]

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable
+from pathlib import Path
 
 import gymnasium as gym
 import imageio.v2 as imageio
@@ -35,7 +37,9 @@ def record_video(
 
     Frames are taken every ``frame_stride`` control steps and streamed to an H.264
     mp4 at ``control rate / stride`` fps, i.e. real time. Returns the frame count,
-    the fps and each episode's return.
+    the fps and each episode's return. The mp4 replaces ``path`` only once it is read
+    back with every frame: ffmpeg on a full disk can exit quietly with a truncated file.
+    Raises OSError (one line) where it could not be written whole.
     """
     if env.render_mode != "rgb_array":
         raise ValueError(f"record_video needs render_mode='rgb_array', got {env.render_mode!r}")
@@ -73,11 +77,37 @@ def record_video(
                     if terminated or truncated:
                         break
                 returns.append(episode_return)
+        except OSError as error:  # ffmpeg died: a full disk, a file size limit
+            raise OSError(
+                f"{path}: the video could not be written ({_first_line(error)})"
+            ) from error
         finally:
-            writer.close()
+            # A writer whose ffmpeg died raises again on close; the count below tells.
+            with contextlib.suppress(OSError):
+                writer.close()
+        written = _frames_in(temp)
+        if written != frames:
+            raise OSError(
+                f"{path}: the video came out with {written} of {frames} frames; is the disk full?"
+            )
     if gif_path is not None:
         write_gif(gif_frames, gif_path, fps=video_fps / gif_every)
     return {"frames": frames, "fps": video_fps, "returns": returns}
+
+
+def _first_line(error: BaseException) -> str:
+    lines = str(error).strip().splitlines()
+    return lines[0] if lines else type(error).__name__
+
+
+def _frames_in(path: Path) -> int:
+    """The frames ffmpeg can read back from ``path`` (0 for a file it cannot read)."""
+    from imageio_ffmpeg import count_frames_and_secs
+
+    try:
+        return count_frames_and_secs(str(path))[0]
+    except (OSError, RuntimeError):
+        return 0
 
 
 def _shrink(frame: np.ndarray, width: int) -> np.ndarray:
