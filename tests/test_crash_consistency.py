@@ -118,7 +118,9 @@ def test_a_kill_while_a_new_best_model_is_written_keeps_the_previous_one(tmp_pat
 def test_resume_repairs_a_torn_monitor_line_and_an_unreadable_evaluations_file(tmp_path):
     run = pendulum_run(tmp_path, n_timesteps=200)
     monitor = next(run.monitor_dir.glob("*.monitor.csv"))
-    monitor.write_text(monitor.read_text() + "-12.5,20")  # a kill mid-line
+    lines = monitor.read_text().splitlines(True)
+    lines.insert(3, "-3.1,2\x00\x00,17\n")  # a line the disk mangled mid-file
+    monitor.write_text("".join(lines) + "-12.5,20")  # and a kill mid-line
     best_before = embedded_evaluation(run.best_model)
     run.evaluations.write_bytes(b"PK\x03\x04 torn")
     said = []
@@ -126,6 +128,8 @@ def test_resume_repairs_a_torn_monitor_line_and_an_unreadable_evaluations_file(t
     result = resumed.run()
     assert result.status == "completed"
     assert any("dropped a partial last line" in line for line in said)
+    assert any("dropped 1 malformed line(s), the first at line 4" in line for line in said)
+    assert "\x00" not in monitor.read_text()
     assert any("evaluations.npz was unreadable" in line for line in said)
     with np.load(run.evaluations) as data:
         assert list(data["timesteps"]) == [300]

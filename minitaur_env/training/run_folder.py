@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import math
 import os
 import re
 import zipfile
@@ -357,6 +358,12 @@ class RunFolder:
             if lines and not lines[-1].endswith("\n"):
                 write_text(monitor, "".join(lines[:-1]))
                 log(f"{monitor.name}: dropped a partial last line ({lines[-1]!r})")
+                lines = lines[:-1]
+            malformed = [i for i, line in enumerate(lines[2:], start=2) if _episode(line) is None]
+            if malformed:
+                write_text(monitor, "".join(t for i, t in enumerate(lines) if i not in malformed))
+                log(f"{monitor.name}: dropped {len(malformed)} malformed line(s), the first "
+                    f"at line {malformed[0] + 1} ({lines[malformed[0]].strip()!r})")  # fmt: skip
         episodes = self.monitor_episodes()
         episodes.sort(key=lambda episode: (episode.session, episode.time))
         done, dropped = 0, {}
@@ -404,18 +411,32 @@ class RunFolder:
             session, offset, previous = 0, 0.0, 0.0
             lines = monitor.read_text().splitlines()
             for index, line in enumerate(lines[2:], start=2):  # a JSON header, then r,l,t
-                _reward, length, time = line.split(",")[:3]
-                if float(time) < previous:
+                parsed = _episode(line)
+                if parsed is None:  # torn; a resume drops it and says so
+                    continue
+                length, time = parsed
+                if time < previous:
                     session, offset = session + 1, offset + previous
-                previous = float(time)
-                episodes.append(MonitorEpisode(
-                    monitor, index, session, float(time), offset + float(time), int(length)
-                ))  # fmt: skip
+                previous = time
+                episodes.append(
+                    MonitorEpisode(monitor, index, session, time, offset + time, length)
+                )
         return episodes
 
     def append_command(self, command: str) -> None:
         with self.command.open("a") as handle:
             handle.write(command + "\n")
+
+
+def _episode(line: str) -> tuple[int, float] | None:
+    """(length, time) of a monitor line ``r,l,t[,...]``, or None where it is not one."""
+    fields = line.strip().split(",")
+    try:
+        float(fields[0])
+        length, time = int(fields[1]), float(fields[2])
+    except (IndexError, ValueError):
+        return None
+    return (length, time) if length > 0 and math.isfinite(time) and time >= 0 else None
 
 
 def zoo_hyperparams(config: dict[str, Any]) -> dict[str, Any]:
