@@ -23,6 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from minitaur_env import RANDOMIZED_KWARGS
+from minitaur_env.cli import add_trust_pickle
+from minitaur_env.gait import has_gait_prior
+from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy, pretrained_models
 from minitaur_env.training.shipping import condition_label, judge
 
@@ -50,7 +53,16 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=12345)
     parser.add_argument("--conditions", nargs="+", choices=list(CONDITIONS), metavar="NAME")
     parser.add_argument("--json", type=Path, help="also write the cells as JSON")
+    add_trust_pickle(parser)
     args = parser.parse_args()
+    try:
+        return judge_all(args, parser)
+    except UsageError as error:
+        print(f"{parser.prog}: error: {error}", file=sys.stderr)
+        return 2
+
+
+def judge_all(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     policies = {}
     for item in args.policy:
         label, sep, path = item.partition("=")
@@ -63,11 +75,14 @@ def main() -> int:
 
     cells: dict[str, dict[str, dict[str, float]]] = {}
     for label, model in policies.items():
-        policy = load_policy(model)
-        env_id = GAIT_ENV_ID if "Trot" in (policy.env_id or ENV_ID) else ENV_ID
+        policy = load_policy(model, trust_pickle=args.trust_pickle)
+        env_id = GAIT_ENV_ID if has_gait_prior(policy.env_id or ENV_ID) else ENV_ID
         interface = {k: v for k, v in policy.env_kwargs.items() if k in INTERFACE}
         for name, kwargs in conditions.items():
-            cell = judge(model, args.episodes, args.seed, env=(env_id, {**interface, **kwargs}))
+            played_on = (env_id, {**interface, **kwargs})
+            cell = judge(
+                model, args.episodes, args.seed, env=played_on, trust_pickle=args.trust_pickle
+            )
             cells.setdefault(label, {})[name] = cell
             print(f"{label:24s} {name:22s} {cell['mean']:6.2f} +- {cell['std']:5.2f}  "
                   f"falls {cell['falls']}/{args.episodes}", flush=True)  # fmt: skip

@@ -157,3 +157,12 @@ def make_trotting_env(
     if history > 1:
         env = FlattenObservation(FrameStackObservation(env, history))
     return env
+
+
+def has_gait_prior(env_id: str) -> bool:
+    """Whether ``env_id`` is registered with the gait prior (its spec's entry point is
+    :func:`make_trotting_env`), so that its policies' actions are the prior's."""
+    entry_point = gym.spec(env_id).entry_point
+    if callable(entry_point):
+        return entry_point is make_trotting_env
+    return entry_point == f"{__name__}:{make_trotting_env.__name__}"

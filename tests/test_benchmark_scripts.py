@@ -16,7 +16,7 @@ import sys
 import pytest
 
 from minitaur_env.training.evaluation import pretrained_models
-from tests.scripts import REPO, needs, run_script
+from tests.scripts import REPO, error_lines, needs, run_script
 
 NUMBER = r"([0-9.]+)"
 
@@ -90,6 +90,32 @@ def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tm
     assert again.returncode == 0, again.stderr
     summary = json.loads(statistics.read_text())["summary"]
     assert summary["return"]["mean"] == pytest.approx(cell["mean"], abs=1e-6)
+
+
+def test_robustness_loads_no_pickle_unless_trusted_and_says_which_flag(tmp_path):
+    import shutil
+    import zipfile
+
+    from minitaur_env.training.run_folder import EMBEDDED_STATISTICS
+
+    shipped = next(model for _, model in pretrained_models() if model.parents[1].name == "sac")
+    run = tmp_path / "downloaded" / shipped.parent.name
+    shutil.copytree(shipped.parent, run)
+    model = run / shipped.name
+    with zipfile.ZipFile(shipped) as source, zipfile.ZipFile(model, "w") as target:
+        for name in source.namelist():
+            if name != EMBEDDED_STATISTICS:  # statistics only as the pickle beside it
+                target.writestr(name, source.read(name))
+    for statistics in run.rglob("*vecnormalize*.json"):
+        statistics.unlink()
+    args = ["benchmarks/robustness.py", "--policy", f"sac={model}", "--episodes", "1",
+            "--conditions", "pushes"]  # fmt: skip
+    refused = run_script(*args, cwd=tmp_path)
+    assert refused.returncode == 2 and len(error_lines(refused)) == 1, refused.stderr
+    assert error_lines(refused)[0].startswith("robustness.py: error: ")
+    assert error_lines(refused)[0].endswith("pass --trust-pickle if you trust where it came from")
+    trusted = run_script(*args, "--trust-pickle", cwd=tmp_path)
+    assert trusted.returncode == 0, trusted.stderr
 
 
 def figure_line(pattern: str, text: str) -> str:

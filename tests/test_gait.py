@@ -191,3 +191,19 @@ def test_history_shows_the_last_observations_newest_last():
     stacked.close()
     with pytest.raises(ValueError, match=r"^history must be an int in \[1, 16\], got 0"):
         gym.make("MinitaurBulletTrot-v0", history=0)
+
+
+def test_the_gait_prior_is_read_from_the_env_spec_not_the_id():
+    from minitaur_env.gait import has_gait_prior
+
+    assert has_gait_prior("MinitaurBulletTrot-v0")
+    assert has_gait_prior("MinitaurBulletTrotRandomized-v0")
+    assert not has_gait_prior("MinitaurBulletEnv-v0")
+    # an id that says "Trot" without the prior, and one with the prior that does not
+    gym.register("MyTrotLookalike-v0", entry_point="minitaur_env.env:MinitaurBulletEnv")
+    gym.register("MyPacer-v0", entry_point="minitaur_env.gait:make_trotting_env")
+    try:
+        assert not has_gait_prior("MyTrotLookalike-v0")
+        assert has_gait_prior("MyPacer-v0")
+    finally:
+        del gym.registry["MyTrotLookalike-v0"], gym.registry["MyPacer-v0"]

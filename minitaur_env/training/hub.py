@@ -18,6 +18,7 @@ from typing import Any
 
 import yaml
 
+from minitaur_env.gait import has_gait_prior
 from minitaur_env.training import UsageError, env_name
 from minitaur_env.training.evaluation import (
     LoadedPolicy,
@@ -193,7 +194,7 @@ def _model_card(
     # The env the policy was trained on: its id and the keyword arguments of its run.
     make = f'gym.make("{env_id}"' + (f", **{env_kwargs!r})" if env_kwargs else ")")
     actions = "actions in env units out"
-    if "Trot" in env_id:
+    if has_gait_prior(env_id):
         actions += (
             f" (the gait prior's {policy.model.action_space.shape[0]} entries: step "
             f"`{make}` with them, whose `TrottingGait` runs the trotting generator)"
