@@ -262,6 +262,51 @@ def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
     assert any(len(lines) == 2 and lines[1].startswith(resume) for lines in commands)
 
 
+def test_sigterm_to_the_sweep_stops_it_as_ctrl_c_does_and_says_how_to_resume(tmp_path):
+    # A scheduler's or kill's SIGTERM to the driver: Ray's handler printed a C++ stack dump
+    # and no resume hint. Now the trials stop at their checkpoints and the exit is 143.
+    args = [*SWEEP_ARGS, "-n", "3000", "--seeds", "1", "-f", str(tmp_path), "--name", "term"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    process = subprocess.Popen(
+        sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, env=env, start_new_session=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 900
+    while not list(tmp_path.glob("term/runs/*/sac/*/checkpoints/rl_model_500_steps.zip")):
+        assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
+        time.sleep(0.5)
+    process.send_signal(signal.SIGTERM)  # the driver alone, as `kill PID` sends it
+    _, stderr = process.communicate(timeout=300)
+    assert process.returncode == 143, stderr
+    assert stderr.splitlines()[-1] == (
+        f"sweep interrupted; continue it with: python -m minitaur_env.sweep -f {tmp_path} "
+        "--name term --resume"
+    )
+    assert "SIGTERM received" not in stderr and "Stack trace" not in stderr
+
+
+def test_settings_that_cannot_make_the_env_or_model_are_refused_before_ray_starts():
+    bad_env = dataclasses.replace(base(), env_kwargs={"not_a_setting": 1})
+    with pytest.raises(UsageError, match="cannot make Pendulum-v1 with"):
+        Sweep(bad_env).validate()
+    bad_model = dataclasses.replace(base(), hyperparams={**TINY_SAC, "policy_kwargs": {"x": 1}})
+    with pytest.raises(UsageError, match="invalid hyperparameters for sac"):
+        Sweep(bad_model).validate()
+    if not torch.cuda.is_available():  # Tune waited forever for a GPU
+        with pytest.raises(UsageError, match="--gpus-per-trial 1: this machine has 0 GPU"):
+            Sweep(base(), gpus_per_trial=1.0).validate()
+    Sweep(base()).validate()  # control
+
+
+def test_trials_the_cluster_cannot_place_are_refused_not_waited_for():
+    sweep = Sweep(base(), cpus_per_trial=4.0)
+    with pytest.raises(UsageError, match="--cpus-per-trial 4: the Ray cluster has 2 CPU"):
+        sweep._check_cluster({"CPU": 2.0})
+    with pytest.raises(UsageError, match="--gpus-per-trial 1: the Ray cluster has 0 GPU"):
+        Sweep(base(), gpus_per_trial=1.0)._check_cluster({"CPU": 2.0})
+    Sweep(base(), cpus_per_trial=2.0)._check_cluster({"CPU": 2.0})
+
+
 def test_without_the_ray_extra_the_sweep_says_so_in_one_line():
     hide_ray = "import sys\nsys.modules['ray'] = None\nsys.argv = ['sweep', '--seeds', '1']\n"
     run = hide_ray + "import runpy\nrunpy.run_module('minitaur_env.sweep', run_name='__main__')"

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import signal
 import sys
 import time
 from datetime import datetime
@@ -215,7 +216,7 @@ def sweep(args: argparse.Namespace, command: str, prog: str) -> int:
             f"-f {sweep.storage} --name {sweep.name} --resume",
             file=sys.stderr,
         )
-        return 130
+        return 128 + (sweep.stopped_by or signal.SIGINT)
     rows = summarize(sweep.folder, args.milestones)
     print(format_rows(rows))
     print(f"summary: {sweep.folder / 'summary.csv'}; curves: {sweep.folder / 'curves.png'}")

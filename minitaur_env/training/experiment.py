@@ -199,20 +199,7 @@ class Experiment:
         )  # fmt: skip
 
     def _fresh_model(self) -> BaseAlgorithm:
-        config = self.config
-        try:
-            return self._algorithm()(
-                resolve_policy(config.algo, config.policy, config.backend),
-                self.env,
-                seed=config.seed,
-                device=config.device,
-                tensorboard_log=config.tensorboard_log,
-                verbose=0,
-                **algorithm_kwargs(config.hyperparams),
-            )
-        except (TypeError, ValueError, AssertionError) as error:
-            message = " ".join(str(error).split())
-            raise UsageError(f"invalid hyperparameters for {config.algo}: {message}") from error
+        return new_model(self.config, self.env)
 
     def build(self) -> None:
         """The training env, the model (fresh or from a checkpoint) and the eval env."""
@@ -403,3 +390,37 @@ class Experiment:
             )  # fmt: skip
             result.read_evaluations(self.config.env)
             return result
+
+
+def new_model(config: ExperimentConfig, env: VecEnv) -> BaseAlgorithm:
+    """The algorithm with the run's hyperparameters on ``env``; what SB3 rejects in them is
+    one UsageError."""
+    try:
+        return algorithm_class(config.algo, config.backend)(
+            resolve_policy(config.algo, config.policy, config.backend),
+            env,
+            seed=config.seed,
+            device=config.device,
+            tensorboard_log=config.tensorboard_log,
+            verbose=0,
+            **algorithm_kwargs(config.hyperparams),
+        )
+    except (TypeError, ValueError, AssertionError) as error:
+        message = " ".join(str(error).split())
+        raise UsageError(f"invalid hyperparameters for {config.algo}: {message}") from error
+
+
+def check_buildable(config: ExperimentConfig) -> None:
+    """Refuse, as train.py does at its start, settings that could not make the env or the
+    model: a sweep calls this before it starts Ray, so that a typo is one line, not a trial
+    that fails behind Ray's start-up and tracebacks."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from minitaur_env.training.single_env import make_env
+
+    config.validate()
+    env = DummyVecEnv([lambda: make_env(config.env, config.env_kwargs)])
+    try:
+        new_model(config, env)
+    finally:
+        env.close()

@@ -20,11 +20,13 @@ import dataclasses
 import logging
 import math
 import os
+import signal
 from pathlib import Path
 from typing import Any
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.config import ExperimentConfig
+from minitaur_env.training.experiment import check_buildable
 from minitaur_env.training.files import read_yaml
 from minitaur_env.training.trial import METRIC, RUNS, TRIAL_FILE, run_trial
 
@@ -67,6 +69,7 @@ class Sweep:
     # Whether a trial resuming its run may unpickle the run's files (SBX checkpoints,
     # runs from before 0.3): this session's --trust-pickle, never a stored setting.
     trust_pickle: bool = False
+    stopped_by: int | None = None  # the signal that cut this session's trials short
 
     @property
     def folder(self) -> Path:
@@ -89,6 +92,25 @@ class Sweep:
             )
         if self.cpus_per_trial <= 0 or self.gpus_per_trial < 0 or self.trials < 1:
             raise UsageError("--cpus-per-trial must be > 0, --gpus-per-trial >= 0, --trials >= 1")
+        if self.gpus_per_trial > 0 and self.address is None:
+            import torch  # a local Ray sees the GPUs torch sees
+
+            if torch.cuda.device_count() < self.gpus_per_trial:
+                raise UsageError(
+                    f"--gpus-per-trial {self.gpus_per_trial:g}: this machine has "
+                    f"{torch.cuda.device_count()} GPU(s), so no trial could ever start"
+                )
+        check_buildable(self.base)
+
+    def _check_cluster(self, resources: dict[str, float]) -> None:
+        """Refuse trials the cluster could never place: Tune would wait for them forever."""
+        for key, wanted, flag in (("CPU", self.cpus_per_trial, "--cpus-per-trial"),
+                                  ("GPU", self.gpus_per_trial, "--gpus-per-trial")):  # fmt: skip
+            if wanted > resources.get(key, 0.0):
+                raise UsageError(
+                    f"{flag} {wanted:g}: the Ray cluster has {resources.get(key, 0.0):g} "
+                    f"{key}(s), so no trial could ever start"
+                )
 
     def _tuner(self, resume: bool) -> Any:
         from ray import tune
@@ -191,9 +213,20 @@ class Sweep:
         elif started_here:
             ray.init(include_dashboard=False, **quiet)
         logging.getLogger("ray.tune").setLevel(logging.WARNING)
+
+        # SIGTERM (a scheduler's stop, systemd, kill) ends the sweep as Ctrl-C does: Tune
+        # stops the trials at their checkpoints and keeps its state for --resume. Ray's
+        # own handler printed a C++ stack dump and left no resume hint.
+        def interrupt_instead(signum: int, frame: Any) -> None:
+            self.stopped_by = signal.SIGTERM
+            os.kill(os.getpid(), signal.SIGINT)  # the signal Tune knows how to stop on
+
+        previous = signal.signal(signal.SIGTERM, interrupt_instead)
         try:
+            self._check_cluster(ray.cluster_resources())
             results = self._tuner(resume).fit()
         finally:
+            signal.signal(signal.SIGTERM, previous)
             if started_here:
                 ray.shutdown()
         failures = []
