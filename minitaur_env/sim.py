@@ -19,6 +19,10 @@ import pybullet_data
 DATA_PATH: str = pybullet_data.getDataPath()
 
 
+class GuiUnavailable(RuntimeError):
+    """The PyBullet GUI cannot open here (no display, or another GUI in this process)."""
+
+
 class BulletSim:
     """A PyBullet physics client and the operations the Minitaur env needs.
 
@@ -30,13 +34,13 @@ class BulletSim:
     def __init__(self, gui: bool = False) -> None:
         self._id = -1
         if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-            raise RuntimeError(
+            raise GuiUnavailable(
                 "the PyBullet GUI needs a display and DISPLAY is not set; "
                 "use render_mode='rgb_array', or run under xvfb-run"
             )
         self._id = pybullet.connect(pybullet.GUI if gui else pybullet.DIRECT)
         if self._id < 0:
-            raise RuntimeError(
+            raise GuiUnavailable(
                 "could not open the PyBullet GUI (PyBullet allows one GUI per process)"
                 if gui
                 else "could not connect to PyBullet"

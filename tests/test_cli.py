@@ -169,7 +169,7 @@ def test_each_subcommand_answers_help_under_its_own_name(tmp_path):
         assert shown.stdout.startswith(f"usage: minitaur {name} "), name
 
 
-def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path):
+def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path, monkeypatch):
     from minitaur_env import cli
 
     cases = {
@@ -196,7 +196,10 @@ def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path):
         ("evaluate", "--seed", "-1"): "--seed -1: episode seeds must be >= 0",
         ("package", "no/such/run", "--seed", "-1"): "--seed -1: episode seeds must be >= 0",
         ("sweep", "--summarize", "no/such/sweep"): "no/such/sweep",
+        ("train", "--env-kwargs", "render_mode=human"): "the PyBullet GUI needs a display",
+        ("evaluate", "--env-kwargs", "render_mode=human"): "the PyBullet GUI needs a display",
     }
+    monkeypatch.delenv("DISPLAY", raising=False)
     for (name, *argv), expected in cases.items():
         result = run_main(cli.main, name, *argv, cwd=tmp_path)
         lines = error_lines(result)

@@ -7,6 +7,7 @@ from typing import Any
 import gymnasium as gym
 
 import minitaur_env  # noqa: F401  (registers the Minitaur ids)
+from minitaur_env.sim import GuiUnavailable
 from minitaur_env.training import UsageError
 
 
@@ -33,5 +34,5 @@ def make_env(env_id: str, env_kwargs: dict[str, Any] | None = None, **extra: Any
     qualified = qualified_env_id(env_id)
     try:
         return gym.make(qualified, **{**(env_kwargs or {}), **extra})
-    except (TypeError, ValueError) as error:
+    except (TypeError, ValueError, GuiUnavailable) as error:
         raise UsageError(f"cannot make {env_id} with {env_kwargs or {}}: {error}") from error
