@@ -66,6 +66,26 @@ def test_a_normalized_model_without_its_statistics_is_refused(tmp_path):
         load_policy(bare, device="cpu")
 
 
+def test_a_zip_alone_without_statistics_is_played_raw_with_a_warning(tmp_path, capsys):
+    run = pendulum_run(tmp_path, n_timesteps=200)
+    alone = tmp_path / "downloads" / "model.zip"  # no config.yml to say how it was trained
+    alone.parent.mkdir()
+    with zipfile.ZipFile(run.zoo_model) as source, zipfile.ZipFile(alone, "w") as target:
+        for name in source.namelist():
+            if name != EMBEDDED_STATISTICS:
+                target.writestr(name, source.read(name))
+    capsys.readouterr()
+    assert load_policy(alone, device="cpu").normalizer is None
+    warning = capsys.readouterr().err.strip().splitlines()
+    assert warning == [
+        f"warning: {alone} holds no VecNormalize statistics and no config.yml is beside it to "
+        "say it was trained without them; playing raw observations"
+    ]
+    shutil.copyfile(run.zoo_model, alone)  # control: the zip carries its statistics
+    assert load_policy(alone, device="cpu").normalizer is not None
+    assert capsys.readouterr().err == ""
+
+
 def test_algo_that_contradicts_the_zip_is_one_line(tmp_path):
     shipped = REPO / "pretrained" / "ppo" / "MinitaurBulletEnv-v0_1" / "MinitaurBulletEnv-v0.zip"
     played = run_script("evaluate.py", "--model", str(shipped), "--algo", "a2c",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import pickle
+import sys
 import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -154,6 +155,12 @@ def _normalizer_of(
         raise UsageError(
             f"{model_path} was trained with VecNormalize ({run.config} says normalize: "
             f"{config['normalize']}) but its statistics are neither in the zip nor beside it"
+        )
+    if not config:  # a zip alone: nothing says whether it was trained on normalized input
+        print(
+            f"warning: {model_path} holds no VecNormalize statistics and no config.yml is "
+            "beside it to say it was trained without them; playing raw observations",
+            file=sys.stderr,
         )
     return None
 
