@@ -39,6 +39,7 @@ from minitaur_env.training import UsageError
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
 from minitaur_env.training.files import atomic_path
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.seeds import REPORT_SEED
 from minitaur_env.training.shipping import judge
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -179,7 +180,7 @@ def main(argv: list[str] | None = None) -> None:
         f"ending in {LIVE} judges the final models' live actor of an actor_ema run",
     )  # fmt: skip
     parser.add_argument("--episodes", type=int, default=20)
-    parser.add_argument("--report-seed", type=int, default=12345)
+    parser.add_argument("--report-seed", type=int, default=REPORT_SEED)
     parser.add_argument("--rejudge", action="store_true", help="play the final models again")
     parser.add_argument(
         "--trust-pickle", action="store_true",

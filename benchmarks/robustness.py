@@ -27,6 +27,7 @@ from minitaur_env.cli import add_trust_pickle
 from minitaur_env.gait import has_gait_prior
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy, pretrained_models
+from minitaur_env.training.seeds import REPORT_SEED
 from minitaur_env.training.shipping import condition_label, judge
 
 INTERFACE = ("observation", "history", "gait")
@@ -50,7 +51,7 @@ def main() -> int:
         help="a policy to judge (default: every shipped policy)",
     )  # fmt: skip
     parser.add_argument("--episodes", type=int, default=20)
-    parser.add_argument("--seed", type=int, default=12345)
+    parser.add_argument("--seed", type=int, default=REPORT_SEED)
     parser.add_argument("--conditions", nargs="+", choices=list(CONDITIONS), metavar="NAME")
     parser.add_argument("--json", type=Path, help="also write the cells as JSON")
     add_trust_pickle(parser)

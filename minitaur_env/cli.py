@@ -39,6 +39,7 @@ from minitaur_env.training.cli import (
     given_flags,
     suppress_defaults,
 )
+from minitaur_env.training.seeds import REPORT_SEED, SELECTION_SEED
 
 # The modules of the ray extra: a sweep without them names the extra, not the train one.
 SWEEP_MODULES = ("ray", "optuna", "rliable", "arch", "pandas")
@@ -149,7 +150,7 @@ def evaluate_parser(prog: str = "evaluate.py") -> argparse.ArgumentParser:
     load.add_argument("--load-checkpoint", type=int, metavar="N", help="rl_model_N_steps.zip")
     load.add_argument("--load-last-checkpoint", action="store_true", help="the newest checkpoint")
     add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
-    add("--seed", type=int, default=12345, help="seed of episode 0; episode i uses seed + i")
+    add("--seed", type=int, default=REPORT_SEED, help="seed of episode 0; episode i uses seed + i")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument(
         "--deterministic",
@@ -297,8 +298,8 @@ def ship_parser(prog: str = "minitaur ship") -> argparse.ArgumentParser:
         help="also judge each candidate on its env with these --env-kwargs (repeatable); "
         "falls are summed and means averaged over its own env and these",
     )
-    add("--select-seed", type=int, default=5000, help="seed of selection episode 0")
-    add("--report-seed", type=int, default=12345, help="seed of report episode 0")
+    add("--select-seed", type=int, default=SELECTION_SEED, help="seed of selection episode 0")
+    add("--report-seed", type=int, default=REPORT_SEED, help="seed of report episode 0")
     add("--json", type=Path, help="write the whole report here")
     add("--ship", type=Path, help="write the chosen model here (a zoo run folder)")
     add_trust_pickle(parser, "(SBX models, statistics without their JSON)")
@@ -332,7 +333,7 @@ def package_parser(prog: str = "minitaur package") -> argparse.ArgumentParser:
     add("-o", "--out", type=Path, default=Path("hub"), help="parent folder (default: hub)")
     add("--env", help="env id (default: the one the model was trained on)")
     add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
-    add("--seed", type=int, default=12345, help="seed of episode 0 (default: 12345)")
+    add("--seed", type=int, default=REPORT_SEED, help="seed of episode 0 (default: %(default)s)")
     add("--video-steps", type=int, default=1000, help="env steps in replay.mp4 (default: 1000)")
     add_trust_pickle(parser)
     return parser

@@ -196,6 +196,9 @@ def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path, monkeypa
         ("evaluate", "--seed", "-1"): "--seed -1: episode seeds must be >= 0",
         ("package", "no/such/run", "--seed", "-1"): "--seed -1: episode seeds must be >= 0",
         ("sweep", "--summarize", "no/such/sweep"): "no/such/sweep",
+        ("ship", "no/such/run", "--select-seed", "12340"): (
+            "selection seeds 12340..12359 overlap the report seeds 12345..12364"
+        ),
         ("train", "--env-kwargs", "render_mode=human"): "the PyBullet GUI needs a display",
         ("evaluate", "--env-kwargs", "render_mode=human"): "the PyBullet GUI needs a display",
     }

@@ -10,6 +10,7 @@ import pytest
 
 from minitaur_env.training import UsageError, shipping
 from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.seeds import REPORT_SEED
 
 
 def fake_run(root: Path) -> RunFolder:
@@ -59,7 +60,7 @@ def test_final_only_considers_the_final_models_alone(tmp_path, judged):
     assert list(report["selection"]) == [str(run.zoo_model)]
     assert Path(report["chosen"]["model"]).name == "MinitaurBulletEnv-v0.zip"
     # only the chosen model and each run's best and final are played on the report seeds
-    played_on_report = {name for name, seed in calls if seed == shipping.REPORT_SEED}
+    played_on_report = {name for name, seed in calls if seed == REPORT_SEED}
     assert played_on_report == {"best_model.zip", "MinitaurBulletEnv-v0.zip"}
 
 

@@ -266,12 +266,23 @@ def ship(args: argparse.Namespace) -> int:
     from minitaur_env.training.files import ensure_writable, write_text
     from minitaur_env.training.hyperparams import parse_overrides
     from minitaur_env.training.run_folder import RunFolder
+    from minitaur_env.training.seeds import judging_block
     from minitaur_env.training.shipping import select
     from minitaur_env.training.shipping import ship as ship_policy
 
     select_episodes = args.episodes if args.select_episodes is None else args.select_episodes
     if min(args.episodes, select_episodes) < 1:
         raise UsageError("--episodes and --select-episodes must be at least 1")
+    try:
+        selection = judging_block(args.select_seed, select_episodes, "selection")
+        report = judging_block(args.report_seed, args.episodes, "report")
+    except ValueError as error:
+        raise UsageError(str(error)) from error
+    if set(selection) & set(report):  # the report must be seeds the choice never saw
+        raise UsageError(
+            f"selection seeds {selection.start}..{selection.stop - 1} overlap the report "
+            f"seeds {report.start}..{report.stop - 1}"
+        )
     runs = [RunFolder.existing(path) for path in args.runs]
     if args.ship:  # before the hours of judging
         for run in runs:  # provenance needs each run's commands

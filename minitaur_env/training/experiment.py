@@ -54,6 +54,7 @@ from minitaur_env.training.runtime import (
 from minitaur_env.training.safe_load import (
     save_normalizer,
 )
+from minitaur_env.training.seeds import SeedPlan
 
 # Raised late by SB3 or torch for a setting they reject (the checks before training catch
 # most): status 2, as a usage error before training would be.
@@ -175,12 +176,23 @@ class Experiment:
     def _algorithm(self) -> type[BaseAlgorithm]:
         return algorithm_class(self.config.algo, self.config.backend)
 
-    def _build_envs(self, seed: int, normalizer: Callable[[VecEnv], VecNormalize] | None) -> None:
+    @property
+    def seeds(self) -> SeedPlan:
+        try:
+            return SeedPlan(self.config.seed, self.config.n_envs)
+        except ValueError as error:
+            raise UsageError(str(error)) from error
+
+    def _build_envs(
+        self, started_at: int, normalizer: Callable[[VecEnv], VecNormalize] | None
+    ) -> None:
+        """The training and evaluation envs of a session that starts at env step
+        ``started_at``, seeded as the run's seed plan says."""
         config = self.config
         env = make_training_env(
             config.env,
             n_envs=config.n_envs,
-            seed=seed,
+            seed=self.seeds.training(started_at)[0],
             env_kwargs=config.env_kwargs,
             vec_env=config.vec_env,
             monitor_dir=str(self.run_folder.monitor_dir),
@@ -194,7 +206,7 @@ class Experiment:
             gamma = config.hyperparams.get("gamma", 0.99)
             self.env = VecNormalize(env, gamma=gamma, **options)
         self.eval_env = make_eval_env(
-            config.env, seed=config.seed + 10_000, env_kwargs=config.env_kwargs,
+            config.env, seed=self.seeds.evaluation(started_at)[0], env_kwargs=config.env_kwargs,
             normalize=config.normalize,
         )  # fmt: skip
 
@@ -210,17 +222,21 @@ class Experiment:
             )
             self.resumed_at = steps
             self.run_folder.rewind_logs(steps, self.log)
-            # New episodes after a resume, from the same seed.
-            self._build_envs(config.seed + steps, normalizer)
+            # New episodes after a resume: the plan's seeds for a session from `steps`.
+            self._build_envs(steps, normalizer)
             model.set_env(self.env, force_reset=True)
             model.tensorboard_log = config.tensorboard_log
             self.model = model
-        elif config.trained_agent:
-            self._build_envs(config.seed, trained_agent_normalizer(config))
-            self.model = load_trained_agent(config, self.env, self.log)
         else:
-            self._build_envs(config.seed, None)
-            self.model = self._fresh_model()
+            if config.trained_agent:
+                self._build_envs(0, trained_agent_normalizer(config))
+                self.model = load_trained_agent(config, self.env, self.log)
+            else:
+                self._build_envs(0, None)
+                self.model = self._fresh_model()
+            # SB3 seeds a model's env with the model's seed (env i: seed + i) when it sets
+            # the model up; its first reset plays the plan's training seeds instead.
+            self.env.seed(self.seeds.training(0)[0])
         self._configure_logger()
 
     def _configure_logger(self) -> None:
@@ -290,7 +306,7 @@ class Experiment:
                     run_videos_dir=run.videos_dir,
                     shared_dir=Path("videos"),
                     name_prefix=run.name,
-                    seed=config.seed + 20_000,
+                    seed=self.seeds.video()[0],
                     verbose=1,
                 )
             )

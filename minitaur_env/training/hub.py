@@ -35,6 +35,7 @@ from minitaur_env.training.run_folder import (
     zoo_hyperparams,
 )
 from minitaur_env.training.safe_load import copy_statistics
+from minitaur_env.training.seeds import REPORT_SEED
 
 
 def model_of(run_or_model: Path) -> Path:
@@ -50,7 +51,7 @@ def package_for_hub(
     out_dir: Path,
     env_id: str | None = None,
     episodes: int = 20,
-    seed: int = 12345,
+    seed: int = REPORT_SEED,
     video_steps: int = 1000,
     trust_pickle: bool = False,
 ) -> Path:

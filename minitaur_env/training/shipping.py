@@ -1,10 +1,10 @@
 """Shipping a policy: judge candidates on seeds no one reports, pick one, write it with
 its provenance.
 
-Selection seeds (5000..) are used neither by training (seeds 0.., eval env seeds offset by
-10000) nor by the report (12345..); the figures a shipped policy carries are its report
-seeds'. ``python -m minitaur_env.ship`` is the command; provenance.yml is written here
-and nowhere else.
+Selection seeds (5000..) are used neither by training nor by the report (12345..): the
+seed plan (``seeds.py``) keeps every run's own seeds apart from both blocks. The figures a
+shipped policy carries are its report seeds'. ``minitaur ship`` is the command;
+provenance.yml is written here and nowhere else.
 """
 
 from __future__ import annotations
@@ -27,9 +27,7 @@ from minitaur_env.training.onnx_export import export_onnx
 from minitaur_env.training.plotting import plot_learning_curve
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import copy_statistics
-
-SELECT_SEED = 5000
-REPORT_SEED = 12345
+from minitaur_env.training.seeds import REPORT_SEED, SELECTION_SEED
 
 
 def judge(
@@ -88,7 +86,7 @@ def select(
     *,
     episodes: int = 20,
     select_episodes: int | None = None,
-    select_seed: int = SELECT_SEED,
+    select_seed: int = SELECTION_SEED,
     report_seed: int = REPORT_SEED,
     from_steps: int = 200_000,
     only_steps: list[int] | None = None,
