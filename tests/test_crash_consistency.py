@@ -66,7 +66,7 @@ def test_a_normalized_model_without_its_statistics_is_refused(tmp_path):
         load_policy(bare, device="cpu")
 
 
-def test_a_zip_alone_without_statistics_is_played_raw_with_a_warning(tmp_path, capsys):
+def test_a_zip_alone_without_statistics_is_played_raw_and_evaluate_says_so(tmp_path):
     run = pendulum_run(tmp_path, n_timesteps=200)
     alone = tmp_path / "downloads" / "model.zip"  # no config.yml to say how it was trained
     alone.parent.mkdir()
@@ -74,16 +74,18 @@ def test_a_zip_alone_without_statistics_is_played_raw_with_a_warning(tmp_path, c
         for name in source.namelist():
             if name != EMBEDDED_STATISTICS:
                 target.writestr(name, source.read(name))
-    capsys.readouterr()
-    assert load_policy(alone, device="cpu").normalizer is None
-    warning = capsys.readouterr().err.strip().splitlines()
-    assert warning == [
-        f"warning: {alone} holds no VecNormalize statistics and no config.yml is beside it to "
-        "say it was trained without them; playing raw observations"
-    ]
+    loaded = load_policy(alone, device="cpu")
+    assert loaded.normalizer is None and loaded.normalization_unknown
+    played = run_script("evaluate.py", "--model", str(alone), "--env", "Pendulum-v1",
+                        "--episodes", "1", cwd=tmp_path)  # fmt: skip
+    assert played.returncode == 0, played.stderr
+    assert (
+        f"policy: {alone} (sac, raw observations: no VecNormalize statistics in the zip and "
+        "no config.yml beside it to say it was trained without them) on Pendulum-v1"
+    ) in played.stdout
     shutil.copyfile(run.zoo_model, alone)  # control: the zip carries its statistics
-    assert load_policy(alone, device="cpu").normalizer is not None
-    assert capsys.readouterr().err == ""
+    loaded = load_policy(alone, device="cpu")
+    assert loaded.normalizer is not None and not loaded.normalization_unknown
 
 
 def test_algo_that_contradicts_the_zip_is_one_line(tmp_path):

@@ -290,7 +290,7 @@ def _make_cartpole_model(path):
         (["--model", "{best}", "--env", "NoSuchEnv-v1"], "unknown env id 'NoSuchEnv-v1'", 2),
         (["--model", "{best}", "--render-video", "-o", "a-file/x.mp4"], "cannot write to", 2),
         (["--model", "{best}", "--json", "a-file/x.json"], "cannot write to", 2),
-        (["--model", "{best}", "--gui"], "DISPLAY", 1),
+        (["--model", "{best}", "--gui"], "DISPLAY", 2),
         (["--frobnicate"], "unrecognized arguments: --frobnicate", 2),
         (["-f", "empty-logs"], "no trained model found under empty-logs", 2),
     ],

@@ -110,6 +110,11 @@ def evaluate(args: argparse.Namespace, prog: str) -> int:
             details.append("onnxruntime, normalization in the graph")
         elif policy.normalizer is not None and policy.normalizer.norm_obs:
             details.append("observations normalized")
+        elif policy.normalization_unknown:
+            details.append(
+                "raw observations: no VecNormalize statistics in the zip and no config.yml "
+                "beside it to say it was trained without them"
+            )
         print(f"policy: {policy.path} ({', '.join(details)}) on {env_id}")
 
         results = None
@@ -171,7 +176,7 @@ def evaluate(args: argparse.Namespace, prog: str) -> int:
                 env.close()
             returns = ", ".join(f"{record['return']:.2f}" for record in shown)
             print(f"gui: {len(shown)} episodes in the PyBullet window, returns {returns}")
-    except RuntimeError as error:  # e.g. the GUI without a display
+    except RuntimeError as error:  # a simulator failure while playing
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 1
     return 0

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import pickle
-import sys
 import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -49,6 +48,9 @@ class LoadedPolicy:
     env_id: str | None
     env_kwargs: dict[str, Any]
     normalizer: ObservationNormalizer | None
+    # A zip alone: no statistics in it, no config.yml beside it to say it was trained
+    # without them. It plays raw observations, and evaluate.py says so.
+    normalization_unknown: bool = False
 
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
         if self.normalizer is not None:
@@ -123,6 +125,7 @@ def load_policy(
         env_id=config.get("env"),
         env_kwargs=dict(config.get("env_kwargs") or {}),
         normalizer=normalizer,
+        normalization_unknown=normalizer is None and not config,
     )
 
 
@@ -155,12 +158,6 @@ def _normalizer_of(
         raise UsageError(
             f"{model_path} was trained with VecNormalize ({run.config} says normalize: "
             f"{config['normalize']}) but its statistics are neither in the zip nor beside it"
-        )
-    if not config:  # a zip alone: nothing says whether it was trained on normalized input
-        print(
-            f"warning: {model_path} holds no VecNormalize statistics and no config.yml is "
-            "beside it to say it was trained without them; playing raw observations",
-            file=sys.stderr,
         )
     return None
 
