@@ -1,6 +1,6 @@
 """How often can a policy whose only job is not to fall survive the env's pushes?
 
-An upper bound for issue 23's pushes row (<= 2 falls in 20 episodes under
+An upper bound for a pushes goal (<= 2 falls in 20 episodes under
 ``pushes=true``): PPO (the Minitaur entry's settings) learns to stay up under Tan et al.'s
 pushes (130-220 N for 0.06 s every 1.2 s, any horizontal direction) with a reward of 1
 per step survived instead of the env's. Nothing else asks anything of it: it may stand,

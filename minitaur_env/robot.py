@@ -243,8 +243,6 @@ class Minitaur:
 
     def sensor_reading(self) -> np.ndarray:
         """:meth:`observation` plus the base's angular velocity in the base frame (31)."""
-        from minitaur_env.sensors import world_to_base
-
         reading = self.observation()
         rates = world_to_base(reading[-4:], self._sim.base_angular_velocity(self.body))
         return np.concatenate([reading, rates])
@@ -286,3 +284,17 @@ class Minitaur:
         if self.motor_control == "position":
             return  # the knees are free there too, but only the motor model reads them
         self._sim.set_joint_friction(self.body, self.knee_joints, frictions)
+
+
+def world_to_base(quaternion: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """``vector`` (world frame) expressed in the frame of the body oriented by ``quaternion``:
+    what a gyroscope on the base reads for the base's angular velocity."""
+    x, y, z, w = quaternion / np.linalg.norm(quaternion)
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    return rotation.T @ vector

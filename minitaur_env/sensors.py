@@ -23,7 +23,6 @@ ANGLES = slice(0, NUM_MOTORS)
 VELOCITIES = slice(NUM_MOTORS, 2 * NUM_MOTORS)
 QUATERNION = slice(3 * NUM_MOTORS, 3 * NUM_MOTORS + 4)
 BASE_RATES = slice(3 * NUM_MOTORS + 4, 3 * NUM_MOTORS + 7)
-READING_SIZE = 3 * NUM_MOTORS + 7
 
 # Declared observation bounds. The classic bounds (pi, the nominal no-load speed, the
 # torque sensor's limit, 1) plus 0.01 do not contain what the robot does: the motor
@@ -103,20 +102,6 @@ def euler_to_quaternion(euler: np.ndarray) -> np.ndarray:
             cr * cp * cy + sr * sp * sy,
         ]
     )
-
-
-def world_to_base(quaternion: np.ndarray, vector: np.ndarray) -> np.ndarray:
-    """``vector`` (world frame) expressed in the frame of the body oriented by ``quaternion``:
-    what a gyroscope on the base reads for the base's angular velocity."""
-    x, y, z, w = quaternion / np.linalg.norm(quaternion)
-    rotation = np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-    return rotation.T @ vector
 
 
 def observe(

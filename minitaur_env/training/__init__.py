@@ -42,7 +42,7 @@ def missing_dependency(program: str, error: ModuleNotFoundError) -> str:
     """The one line a script prints when the ``train`` extra is not installed."""
     return (
         f"{program}: error: {error.name} is not installed; training and evaluation need "
-        "the train extra: pip install torch==2.13.0 'minitaur-env[train]' (playing an "
+        "the train extra: pip install 'minitaur-env[train]' (playing an "
         "exported .onnx policy needs only 'minitaur-env[onnx]')"
     )
 

@@ -297,8 +297,8 @@ def _write_shipped(
             "model_steps": steps,
             "trained_steps": max((steps for steps, _ in run.checkpoints()), default=steps),
             "wall_clock_min_to_model": round(minutes, 1) if np.isfinite(minutes) else None,
-            "wall_clock_note": "training time on the 2-core CPU machine, shared with other "
-                               "training runs (see docs/results.md)",
+            "wall_clock_note": "training minutes as the run's monitor files recorded them, "
+                               "on the machine that trained it (a shared one runs slower)",
         },
     }  # fmt: skip
     if not also_on:
