@@ -314,7 +314,7 @@ def run_ship(args: argparse.Namespace, argv: list[str], prog: str) -> int:
 
 PACKAGE_DOC = """Write a trained agent as a Hugging Face Hub model folder, offline.
 
-    minitaur package logs/sac/MinitaurBulletEnv-v0_3      # its best model
+    minitaur package logs/sac/MinitaurBulletEnv-v0_3      # its final model
     minitaur package pretrained/sac/MinitaurBulletEnv-v0_1/best_model.zip -o hub
 
 writes ``<out>/<algo>-<env>/``: the model zip, config.yml, env_kwargs.yml,
@@ -329,7 +329,7 @@ unless --trust-pickle. Push it yourself, e.g.
 def package_parser(prog: str = "minitaur package") -> argparse.ArgumentParser:
     parser = new_parser(prog, PACKAGE_DOC)
     add = parser.add_argument
-    add("run_or_model", type=Path, help="a run folder (its best model) or a model zip")
+    add("run_or_model", type=Path, help="a run folder (its final model) or a model zip")
     add("-o", "--out", type=Path, default=Path("hub"), help="parent folder (default: hub)")
     add("--env", help="env id (default: the one the model was trained on)")
     add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")

@@ -18,6 +18,9 @@ import pytest
 from minitaur_env.training.evaluation import pretrained_models
 from tests.scripts import REPO, error_lines, needs, run_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1200)]
+
 NUMBER = r"([0-9.]+)"
 
 

@@ -14,6 +14,9 @@ from minitaur_env.training.aggregate import RunCurve, iqm_with_ci
 from minitaur_env.training.run_folder import RunFolder
 from tests.scripts import REPO, TINY, error_lines, run_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+
 FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
 
 

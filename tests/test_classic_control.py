@@ -10,6 +10,9 @@ from minitaur_env.training import Experiment, ExperimentConfig, UsageError
 from minitaur_env.training.hyperparams import algorithm_kwargs
 from tests.scripts import error_lines, run_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+
 
 def test_cartpole_reaches_475_with_the_shipped_ppo_entry(tmp_path):
     config = ExperimentConfig.resolve(

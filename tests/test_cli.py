@@ -7,12 +7,16 @@ import shutil
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 import train
 from minitaur_env.training import Experiment, ExperimentConfig
 from minitaur_env.training.run_folder import RunFolder
 from tests.scripts import REPO, error_lines, run_main
+
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 PENDULUM = [
     "--env", "Pendulum-v1", "-n", "300", "--eval-freq", "0", "--save-freq", "150",

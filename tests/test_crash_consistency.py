@@ -21,6 +21,9 @@ from minitaur_env.training.run_folder import EMBEDDED_STATISTICS, RunFolder
 from minitaur_env.training.safe_load import embedded_evaluation
 from tests.scripts import REPO, error_lines, run_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+
 NORMALIZED_SAC = {
     "learning_starts": 50, "batch_size": 16, "buffer_size": 2000, "normalize": True,
     "policy_kwargs": {"net_arch": [8]},

@@ -19,6 +19,9 @@ import pytest
 from minitaur_env.training.evaluation import NO_MODEL_HINT
 from tests.scripts import REPO, error_lines, needs
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
+
 DOCS = REPO / "docs"
 NOTEBOOKS = sorted((DOCS / "tutorials").glob("*.ipynb"))
 

@@ -551,6 +551,8 @@ WITHOUT_TRAINING = (
 )
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(600)
 def test_the_env_alone_needs_neither_sb3_nor_torch_and_the_scripts_say_what_is_missing():
     import subprocess
     import sys

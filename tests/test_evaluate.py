@@ -20,6 +20,9 @@ import evaluate
 from minitaur_env.training.video import read_video
 from tests.scripts import REPO, TINY, error_lines, needs, run_main, run_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 SHORT = ["--env-kwargs", "max_episode_steps=30"]
 
 
@@ -142,7 +145,8 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
         "README.md", "config.yml", "env_kwargs.yml", "policy.onnx", "replay.mp4",
         "results.json", "sac-MinitaurBulletEnv-v0.zip", "vec_normalize.json", "vec_normalize.pkl",
     ]  # fmt: skip
-    assert (folder / "sac-MinitaurBulletEnv-v0.zip").read_bytes() == best_model.read_bytes()
+    final_model = best_model.parent / "MinitaurBulletEnv-v0.zip"  # a run folder's model
+    assert (folder / "sac-MinitaurBulletEnv-v0.zip").read_bytes() == final_model.read_bytes()
     results = json.loads((folder / "results.json").read_text())
     assert results["n_eval_episodes"] == 2 and results["is_deterministic"] is True
     card = hub.ModelCard.load(folder / "README.md").data.to_dict()

@@ -29,6 +29,9 @@ from minitaur_env.training.hyperparams import load_hyperparams
 from minitaur_env.training.replay_buffer import load_replay_buffer
 from tests.scripts import needs
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 SMALL_SAC = {
     "learning_starts": 20, "buffer_size": 2000, "batch_size": 16, "train_freq": 1,
     "gradient_steps": 1, "policy_kwargs": {"net_arch": [16]},
@@ -645,3 +648,12 @@ def test_a_failure_that_leaves_no_checkpoint_does_not_promise_a_resume(tmp_path,
     assert result.status == "failed" and not result.run.checkpoints()
     assert "--resume" not in result.message
     assert "no checkpoint to resume from: start the run again" in result.message
+
+
+def test_a_run_folder_stands_for_its_final_model_in_every_command(tmp_path):
+    run = pendulum(tmp_path, eval_freq=100, n_timesteps=200).run().run
+    assert RunFolder.model_of(run.path) == run.zoo_model  # package and onnx alike
+    assert RunFolder.model_of(run.best_model) == run.best_model  # a zip as given
+    run.zoo_model.unlink()  # stopped before its end: say so rather than pick another model
+    with pytest.raises(UsageError, match="has no final model .* pass its best_model.zip"):
+        RunFolder.model_of(run.path)

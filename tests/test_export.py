@@ -17,6 +17,9 @@ from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.export import sbx_to_sb3
 from tests.scripts import TINY, needs, run_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 
 def _jax_critic_outputs(model, obs: np.ndarray, actions: np.ndarray) -> list[np.ndarray]:
     policy = model.policy

@@ -17,6 +17,9 @@ from minitaur_env.training.evaluation import PRETRAINED_DIR, load_policy
 from minitaur_env.training.single_env import make_env
 from tests.scripts import REPO, error_lines, needs
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 onnxruntime = needs("onnxruntime")
 SHIPPED = sorted(PRETRAINED_DIR.glob("*/*/MinitaurBulletEnv-v0.zip"))
 EXPORT = [sys.executable, "-m", "minitaur_env.onnx"]

@@ -17,6 +17,9 @@ import pytest
 
 from minitaur_env import MinitaurBulletEnv
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 SEQUENCES = [f"{kind}_{i}" for kind in ("uniform", "sine", "bang") for i in range(3)] + ["zero_0"]
 # Per-entry scale of the 1e-4 tolerance: angle, velocity, torque and quaternion bounds.
 SCALE = np.concatenate([np.full(8, math.pi), np.full(8, 16 / 0.0954), np.full(8, 5.7), np.ones(4)])

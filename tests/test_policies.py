@@ -13,6 +13,9 @@ from minitaur_env.training.algorithms import infer_algo, load_model
 from minitaur_env.training.policies import POLICY_NAME, StabilizedSACPolicy
 from tests.scripts import needs
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 SMALL = {"learning_starts": 30, "batch_size": 16, "buffer_size": 1000}
 
 

@@ -9,6 +9,9 @@ from minitaur_env.training.envs import make_env
 from minitaur_env.training.evaluation import PRETRAINED_DIR, load_policy, pretrained_models
 from tests.scripts import needs
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 SHIPPED = [path for _, path in pretrained_models()]
 
 

@@ -13,6 +13,9 @@ import pytest
 
 from tests.scripts import REPO
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1200)]
+
 README = (REPO / "README.md").read_text()
 # The pages in the site's reading order (docs/index.md's toctrees).
 PAGES = [REPO / "README.md"] + [

@@ -22,6 +22,9 @@ from minitaur_env.training.run_folder import EMBEDDED_STATISTICS
 from minitaur_env.training.safe_load import UntrustedPickle, safe_custom_objects
 from tests.scripts import TINY, error_lines, needs, run_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32"]
 
 

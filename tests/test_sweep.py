@@ -25,6 +25,9 @@ from minitaur_env.training.sweep_summary import summarize
 from minitaur_env.training.sweeps import Sweep
 from tests.scripts import REPO, error_lines, needs
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]
+
 needs("ray")
 needs("rliable")
 

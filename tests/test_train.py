@@ -25,6 +25,9 @@ from minitaur_env.training.replay_buffer import load_replay_buffer
 from minitaur_env.training.video import read_video
 from tests.scripts import REPO, TINY, error_lines, needs, run_main, run_script, start_script
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+
 FAST_SAC = [
     "--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32",
     "train_freq=1", "gradient_steps=1",

@@ -18,6 +18,9 @@ from minitaur_env.training import envs
 from minitaur_env.training.envs import make_training_env
 from minitaur_env.training.vec_env import EnvWorkerError, GroupedSubprocVecEnv
 
+# Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 
 def dict_cartpole() -> gym.Env:
     env = gym.make("CartPole-v1")

@@ -38,14 +38,6 @@ from minitaur_env.training.safe_load import copy_statistics
 from minitaur_env.training.seeds import REPORT_SEED
 
 
-def model_of(run_or_model: Path) -> Path:
-    """A model zip as given, or a run folder's best model (its final one if it has none)."""
-    if run_or_model.is_dir():
-        run = RunFolder.existing(run_or_model)
-        return run.best_model if run.best_model.is_file() else run.final_model
-    return run_or_model
-
-
 def package_for_hub(
     run_or_model: Path,
     out_dir: Path,
@@ -66,7 +58,7 @@ def package_for_hub(
         raise UsageError(
             "packaging needs huggingface_hub: pip install 'minitaur-env[zoo]'"
         ) from error
-    policy = load_policy(model_of(run_or_model), trust_pickle=trust_pickle)
+    policy = load_policy(RunFolder.model_of(run_or_model), trust_pickle=trust_pickle)
     env_id = env_id or policy.env_id
     if not env_id:
         raise UsageError(f"{policy.path}: no run config names its env; pass --env")

@@ -110,16 +110,9 @@ def _head(loaded: LoadedPolicy) -> str:
     raise UsageError(f"{loaded.path}: no ONNX export for {loaded.algo}")
 
 
-def resolve_model(run_or_model: Path) -> Path:
-    """A model zip as given, or a run folder's final model (a shipped folder's model)."""
-    if run_or_model.is_dir():
-        return RunFolder.existing(run_or_model).final_model
-    return run_or_model
-
-
 def export_onnx(run_or_model: Path, output: Path, trust_pickle: bool = False) -> dict[str, Any]:
     """Write ``output``; returns the metadata stored in it and the measured agreement."""
-    model_path = resolve_model(run_or_model)
+    model_path = RunFolder.model_of(run_or_model)
     loaded = load_policy(model_path, device="cpu", trust_pickle=trust_pickle)
     if loaded.backend == "sbx":
         raise UsageError(

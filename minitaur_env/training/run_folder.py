@@ -176,6 +176,22 @@ class RunFolder:
         """``<env>.zip``: where the final model is saved, under the zoo's name for it."""
         return self.path / f"{self.env_name}.zip"
 
+    @classmethod
+    def model_of(cls, run_or_model: str | Path) -> Path:
+        """What a command given a run folder or a model zip plays: the zip as given, or the
+        run folder's final model. One meaning everywhere (package, onnx): a run folder
+        stands for the model it ended with; its best model is ``best_model.zip``."""
+        path = Path(run_or_model)
+        if not path.is_dir():
+            return path
+        run = cls.existing(path)
+        if not run.final_model.is_file():
+            raise UsageError(
+                f"{path} has no final model ({run.final_model.name}) yet: pass its "
+                f"{run.best_model.name} or a checkpoint instead"
+            )
+        return run.final_model
+
     @property
     def final_model(self) -> Path:
         """The final model, ``<env>.zip`` (``final_model.zip`` in runs made before)."""
