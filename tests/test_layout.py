@@ -71,3 +71,26 @@ def test_the_layer_check_catches_an_upward_import(tmp_path):
     source = "def f():\n    from minitaur_env.training.experiment import Experiment\n"
     (tmp_path / "probe.py").write_text(source)
     assert imported_modules(tmp_path / "probe.py") == {"experiment"}
+
+
+def documented_order() -> list[set[str]]:
+    """docs/development.md's listing of minitaur_env/training/, one set of modules per line."""
+    text = (PACKAGE.parents[1] / "docs" / "development.md").read_text()
+    block = text.split("minitaur_env/training/ ", 1)[1].split("\nminitaur_env/cli.py", 1)[0]
+    lines = []
+    for line in block.splitlines()[1:]:
+        names = line.strip().split("  ")[0]
+        lines.append({name.strip().removesuffix(".py") for name in names.split(",")})
+    return lines
+
+
+def test_the_documented_layout_lists_every_module_below_what_it_imports():
+    order = documented_order()
+    listed = [name for line in order for name in line]
+    assert sorted(listed) == MODULES, "docs/development.md must list each module once"
+    above: set[str] = set()
+    for line in order:
+        for module in line:
+            climbing = imported_modules(PACKAGE / f"{module}.py") - above - line
+            assert not climbing, f"{module} imports {sorted(climbing)}, listed below it"
+        above |= line
