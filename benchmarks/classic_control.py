@@ -38,12 +38,30 @@ def sweep_folder(storage: str, algo: str, env_id: str) -> Path:
 
 def run_task(args: argparse.Namespace, algo: str, env_id: str, threshold: float, freq: int) -> int:
     command = [
-        sys.executable, "-m", "minitaur_env.sweep", "--algo", algo, "--env", env_id,
-        "--seeds", str(args.seeds), "--eval-freq", str(freq), "--eval-episodes", "10",
-        "--save-freq", "0", "--milestones", str(threshold), "-f", args.storage,
-        "--name", sweep_folder(args.storage, algo, env_id).name,
-        "--max-concurrent", str(args.max_concurrent),
-    ]  # fmt: skip
+        sys.executable,
+        "-m",
+        "minitaur_env.sweep",
+        "--algo",
+        algo,
+        "--env",
+        env_id,
+        "--seeds",
+        str(args.seeds),
+        "--eval-freq",
+        str(freq),
+        "--eval-episodes",
+        "10",
+        "--save-freq",
+        "0",
+        "--milestones",
+        str(threshold),
+        "-f",
+        args.storage,
+        "--name",
+        sweep_folder(args.storage, algo, env_id).name,
+        "--max-concurrent",
+        str(args.max_concurrent),
+    ]
     print("$", " ".join(command[1:]), flush=True)
     return subprocess.run(command, cwd=REPO, check=False).returncode
 

@@ -297,9 +297,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=3000, help="env steps per measurement")
     parser.add_argument(
-        "--only", nargs="+", choices=SECTIONS, default=SECTIONS, metavar="PART",
+        "--only",
+        nargs="+",
+        choices=SECTIONS,
+        default=SECTIONS,
+        metavar="PART",
         help=f"measure only these parts: {' '.join(SECTIONS)} (default: all)",
-    )  # fmt: skip
+    )
     parser.add_argument("--video", action="store_true", help="also time a 1000-step video")
     args = parser.parse_args()
     print(f"env speed, {args.steps} random-action steps per figure, pid {os.getpid()}")

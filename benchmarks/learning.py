@@ -33,10 +33,22 @@ REPO = Path(__file__).resolve().parents[1]
 
 def train(args: argparse.Namespace, seed: int, extra: list[str]) -> Path:
     command = [
-        sys.executable, str(REPO / "train.py"), "--algo", args.algo, "--backend", args.backend,
-        "-n", str(args.n_timesteps), "--seed", str(seed), "-f", args.log_folder, "-v", "0",
+        sys.executable,
+        str(REPO / "train.py"),
+        "--algo",
+        args.algo,
+        "--backend",
+        args.backend,
+        "-n",
+        str(args.n_timesteps),
+        "--seed",
+        str(seed),
+        "-f",
+        args.log_folder,
+        "-v",
+        "0",
         *extra,
-    ]  # fmt: skip
+    ]
     print("$", " ".join(command), flush=True)
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     match = re.search(r"run folder: (\S+)", result.stdout)
@@ -76,9 +88,12 @@ def main() -> None:
     parser.add_argument("-f", "--log-folder", default="logs/learning")
     parser.add_argument("--at", type=int, nargs="+", default=[100_000, 200_000, 300_000])
     parser.add_argument(
-        "--group", nargs="+", action="append", metavar=("LABEL", "RUN_DIR"),
+        "--group",
+        nargs="+",
+        action="append",
+        metavar=("LABEL", "RUN_DIR"),
         help="summarize these existing run folders under LABEL (repeatable)",
-    )  # fmt: skip
+    )
     parser.add_argument("--plot", type=Path, help="write the IQM curves to this PNG")
     parser.add_argument("--threshold", type=float, default=15.0)
     args = parser.parse_args(argv)

@@ -145,21 +145,25 @@ def row(
         shown += " (evaluation columns: the averaged actor's)"
     if any(r and "source" in r for r in reports):
         shown += " (final models judged earlier, not kept)"
-    text = " | ".join([
-        shown,
-        str(len(runs)),
-        str(int(max(c.steps[-1] for c in curves)) // 1000) + "k",
-        cell(means), median(means, digits=2),
-        cell(falls, 0),
-        NONE if not np.isfinite(iqm) else f"{iqm:.2f} ({low:.2f} to {high:.2f})",
-        cell([a[0] if a else np.nan for a in after]),
-        cell([a[1] if a else np.nan for a in after]),
-        f"{kilo(median(steps_to(5.0), 1e-3, 0))} ({reached[5.0]})",
-        f"{kilo(median(steps_to(15.0), 1e-3, 0))} ({reached[15.0]})",
-        median(minutes_to(5.0)), median(minutes_to(15.0)),
-        median([c.steps_per_second for c in curves], digits=0),
-        cell([100 * training_fall_share(run, *FALL_WINDOW) for run in runs], 0),
-    ])  # fmt: skip
+    text = " | ".join(
+        [
+            shown,
+            str(len(runs)),
+            str(int(max(c.steps[-1] for c in curves)) // 1000) + "k",
+            cell(means),
+            median(means, digits=2),
+            cell(falls, 0),
+            NONE if not np.isfinite(iqm) else f"{iqm:.2f} ({low:.2f} to {high:.2f})",
+            cell([a[0] if a else np.nan for a in after]),
+            cell([a[1] if a else np.nan for a in after]),
+            f"{kilo(median(steps_to(5.0), 1e-3, 0))} ({reached[5.0]})",
+            f"{kilo(median(steps_to(15.0), 1e-3, 0))} ({reached[15.0]})",
+            median(minutes_to(5.0)),
+            median(minutes_to(15.0)),
+            median([c.steps_per_second for c in curves], digits=0),
+            cell([100 * training_fall_share(run, *FALL_WINDOW) for run in runs], 0),
+        ]
+    )
     return f"| {text} |", GroupSummary(label, curves, [])
 
 
@@ -175,17 +179,20 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--table", choices=list(TABLES), default="benchmark")
     parser.add_argument(
-        "--row", action="append", metavar="LABEL=GLOB",
+        "--row",
+        action="append",
+        metavar="LABEL=GLOB",
         help="a row from these run folders instead of the table's own (repeatable); a GLOB "
         f"ending in {LIVE} judges the final models' live actor of an actor_ema run",
-    )  # fmt: skip
+    )
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--report-seed", type=int, default=REPORT_SEED)
     parser.add_argument("--rejudge", action="store_true", help="play the final models again")
     parser.add_argument(
-        "--trust-pickle", action="store_true",
+        "--trust-pickle",
+        action="store_true",
         help="load pickles (statistics without their JSON): run folders you trust only",
-    )  # fmt: skip
+    )
     parser.add_argument("--plot", type=Path, help="write the IQM curves (figure 1) to this PNG")
     args = parser.parse_args(argv)
     specs: list[tuple[str, str]] = []

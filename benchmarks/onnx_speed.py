@@ -39,8 +39,10 @@ def main() -> None:
     torch.set_num_threads(1)
     rng = np.random.default_rng(0)
     print("per action, median of rounds (µs); one thread each")
-    print(f"{'policy':<8}{'onnxruntime':>13}{'SB3 predict':>13}{'torch forward':>15}"
-          f"{'predict/onnx':>14}{'onnx size':>11}")  # fmt: skip
+    print(
+        f"{'policy':<8}{'onnxruntime':>13}{'SB3 predict':>13}{'torch forward':>15}"
+        f"{'predict/onnx':>14}{'onnx size':>11}"
+    )
     for onnx_file in sorted(PRETRAINED_DIR.glob("*/MinitaurBulletEnv-v0_1/policy.onnx")):
         model = load_policy(onnx_file.with_name("MinitaurBulletEnv-v0.zip"), device="cpu")
         onnx = OnnxPolicy(onnx_file)
@@ -61,8 +63,10 @@ def main() -> None:
         median = {name: float(np.median(values)) for name, values in timings.items()}
         size = onnx_file.stat().st_size / 1024
         algo = onnx_file.parents[1].name
-        print(f"{algo:<8}{median['onnx']:>13.1f}{median['predict']:>13.1f}{median['torch']:>15.1f}"
-              f"{median['predict'] / median['onnx']:>13.1f}x{size:>8.0f} KiB")  # fmt: skip
+        print(
+            f"{algo:<8}{median['onnx']:>13.1f}{median['predict']:>13.1f}{median['torch']:>15.1f}"
+            f"{median['predict'] / median['onnx']:>13.1f}x{size:>8.0f} KiB"
+        )
 
 
 if __name__ == "__main__":

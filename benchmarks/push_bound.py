@@ -157,9 +157,13 @@ def main(argv: list[str] | None = None) -> None:
         help="at the end, the share survived of pushes of exactly N newtons, per N",
     )
     parser.add_argument(
-        "--directions", type=float, nargs="*", default=[], metavar="DEGREES",
+        "--directions",
+        type=float,
+        nargs="*",
+        default=[],
+        metavar="DEGREES",
         help="with --forces: per direction of the pushes (default: the pushes' own)",
-    )  # fmt: skip
+    )
     args = parser.parse_args(argv)
     if args.timesteps < 0:
         parser.error(f"-n must be 0 or more steps, got {args.timesteps}")
@@ -181,10 +185,19 @@ def main(argv: list[str] | None = None) -> None:
     venv.seed(args.seed)
     venv = VecNormalize(venv, gamma=0.99)
     model = PPO(
-        "MlpPolicy", venv, n_steps=256, batch_size=256, n_epochs=10, learning_rate=2.5e-4,
-        gamma=0.99, gae_lambda=0.95, ent_coef=0.0, clip_range=0.2, seed=args.seed,
+        "MlpPolicy",
+        venv,
+        n_steps=256,
+        batch_size=256,
+        n_epochs=10,
+        learning_rate=2.5e-4,
+        gamma=0.99,
+        gae_lambda=0.95,
+        ent_coef=0.0,
+        clip_range=0.2,
+        seed=args.seed,
         policy_kwargs={"net_arch": [256, 256], "log_std_init": -1.0},
-    )  # fmt: skip
+    )
     callbacks = [
         PushRamp(int(args.ramp * args.timesteps)),
         Evaluation(evaluation_env, args.eval_freq, args.eval_episodes),

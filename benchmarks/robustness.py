@@ -47,9 +47,12 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--policy", action="append", default=[], metavar="LABEL=MODEL.zip",
+        "--policy",
+        action="append",
+        default=[],
+        metavar="LABEL=MODEL.zip",
         help="a policy to judge (default: every shipped policy)",
-    )  # fmt: skip
+    )
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--seed", type=int, default=REPORT_SEED)
     parser.add_argument("--conditions", nargs="+", choices=list(CONDITIONS), metavar="NAME")
@@ -85,8 +88,11 @@ def judge_all(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                 model, args.episodes, args.seed, env=played_on, trust_pickle=args.trust_pickle
             )
             cells.setdefault(label, {})[name] = cell
-            print(f"{label:24s} {name:22s} {cell['mean']:6.2f} +- {cell['std']:5.2f}  "
-                  f"falls {cell['falls']}/{args.episodes}", flush=True)  # fmt: skip
+            print(
+                f"{label:24s} {name:22s} {cell['mean']:6.2f} +- {cell['std']:5.2f}  "
+                f"falls {cell['falls']}/{args.episodes}",
+                flush=True,
+            )
 
     print(
         f"\n| policy ({args.episodes} episodes, seeds {args.seed}..) | "

@@ -55,19 +55,44 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         work = Path(folder)
         sweep, startup = timed(
-            [sys.executable, "-m", "minitaur_env.sweep", *common, "--seeds", str(args.seeds),
-             "--max-concurrent", "1", "-f", str(work / "sweeps")],
-            work, "sweeps/*/runs/*/*/*/config.yml",
-        )  # fmt: skip
+            [
+                sys.executable,
+                "-m",
+                "minitaur_env.sweep",
+                *common,
+                "--seeds",
+                str(args.seeds),
+                "--max-concurrent",
+                "1",
+                "-f",
+                str(work / "sweeps"),
+            ],
+            work,
+            "sweeps/*/runs/*/*/*/config.yml",
+        )
         scripts = sum(
             timed(
-                [sys.executable, str(REPO / "train.py"), *common, "--seed", str(seed),
-                 "--num-threads", "1", "--vec-env", "dummy", "--device", "cpu", "-v", "0",
-                 "-f", str(work / "logs")],
+                [
+                    sys.executable,
+                    str(REPO / "train.py"),
+                    *common,
+                    "--seed",
+                    str(seed),
+                    "--num-threads",
+                    "1",
+                    "--vec-env",
+                    "dummy",
+                    "--device",
+                    "cpu",
+                    "-v",
+                    "0",
+                    "-f",
+                    str(work / "logs"),
+                ],
                 work,
             )[0]
             for seed in range(args.seeds)
-        )  # fmt: skip
+        )
     print(f"{args.seeds} trials of {args.n} steps on {args.env}, one at a time")
     print(f"train.py, one after the other: {scripts:.1f} s")
     print(f"sweep: {sweep:.1f} s; overhead {sweep - scripts:+.1f} s ({sweep / scripts - 1:+.0%})")

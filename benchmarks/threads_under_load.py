@@ -77,8 +77,10 @@ def main() -> None:
                     process.start()
                 time.sleep(1.0)
             try:
-                for name, threads in (("1 thread (train.py's default)", 1),
-                                      ("torch's default threads", 0)):  # fmt: skip
+                for name, threads in (
+                    ("1 thread (train.py's default)", 1),
+                    ("torch's default threads", 0),
+                ):
                     rate, used = measure(threads, args.steps, args.warmup)
                     rates.setdefault((name, load), []).append(rate)
                     threads_used[name] = used

@@ -220,10 +220,14 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             distance_weight, energy_weight, drift_weight, shake_weight
         )
         self.realism = Realism.coerce(
-            realism, control_time_step=control_time_step, control_latency=control_latency,
-            pd_latency=pd_latency, imu_noise_stdev=imu_noise_stdev, imu_bias=imu_bias,
+            realism,
+            control_time_step=control_time_step,
+            control_latency=control_latency,
+            pd_latency=pd_latency,
+            imu_noise_stdev=imu_noise_stdev,
+            imu_bias=imu_bias,
             pushes=pushes,
-        )  # fmt: skip
+        )
         self.camera = Camera(width, height, camera_distance, camera_yaw, camera_pitch)
         self.distance_limit = number("distance_limit", distance_limit, 0, math.inf, low_open=True)
         self.observation_noise_stdev = number(

@@ -60,8 +60,11 @@ class Realism:
     def __post_init__(self) -> None:
         checked = {
             "control_time_step": number(
-                "control_time_step", self.control_time_step, MIN_CONTROL_STEP,
-                MAX_CONTROL_STEP, unit="s",
+                "control_time_step",
+                self.control_time_step,
+                MIN_CONTROL_STEP,
+                MAX_CONTROL_STEP,
+                unit="s",
             ),
             "control_latency": number(
                 "control_latency", self.control_latency, 0, MAX_LATENCY, unit="s"
@@ -72,7 +75,7 @@ class Realism:
             ),
             "imu_bias": _imu_bias(self.imu_bias),
             "pushes": Pushes.coerce(self.pushes),
-        }  # fmt: skip
+        }
         for name, value in checked.items():
             object.__setattr__(self, name, value)
 
@@ -128,9 +131,12 @@ class RewardWeights:
 
     def __post_init__(self) -> None:
         object.__setattr__(
-            self, "distance", number("distance_weight", self.distance, -math.inf, math.inf,
-                                     low_open=True, high_open=True)
-        )  # fmt: skip
+            self,
+            "distance",
+            number(
+                "distance_weight", self.distance, -math.inf, math.inf, low_open=True, high_open=True
+            ),
+        )
         for name in ("energy", "drift", "shake"):
             weight = number(f"{name}_weight", getattr(self, name), 0, math.inf, high_open=True)
             object.__setattr__(self, name, weight)

@@ -251,8 +251,10 @@ class PromoteBestModel(BaseCallback):
         if normalizer is not None:
             # The zoo's enjoy --load-best reads <env>/vecnormalize.pkl, as the zoo itself
             # writes it: the best model's until the final model's replaces it.
-            for path in (self.run.vecnormalize_beside(self.run.best_model),
-                         self.run.zoo_vecnormalize):  # fmt: skip
+            for path in (
+                self.run.vecnormalize_beside(self.run.best_model),
+                self.run.zoo_vecnormalize,
+            ):
                 save_normalizer(normalizer, path)
         return True
 

@@ -168,10 +168,16 @@ def load_trained_agent(
     kwargs.pop("policy_kwargs", None)  # the saved network decides its own shape
     try:
         model = load_sb3_model(
-            algorithm_class(config.algo, config.backend), path, config.trust_pickle,
-            training=True, env=env, seed=config.seed, device=config.device,
-            tensorboard_log=config.tensorboard_log, **kwargs,
-        )  # fmt: skip
+            algorithm_class(config.algo, config.backend),
+            path,
+            config.trust_pickle,
+            training=True,
+            env=env,
+            seed=config.seed,
+            device=config.device,
+            tensorboard_log=config.tensorboard_log,
+            **kwargs,
+        )
     except (ValueError, KeyError) as error:  # e.g. the spaces of another env
         message = " ".join(str(error).split())[:200]
         raise UsageError(f"--trained-agent {path} does not fit {config.env}: {message}") from error
@@ -183,8 +189,10 @@ def load_trained_agent(
         if config.trust_pickle:
             model.load_replay_buffer(buffer)
         else:
-            log(f"{buffer} is a pickle (it can run code): starting with an empty "
-                f"replay buffer; pass {TRUST_FLAG} to load it")  # fmt: skip
+            log(
+                f"{buffer} is a pickle (it can run code): starting with an empty "
+                f"replay buffer; pass {TRUST_FLAG} to load it"
+            )
     return model
 
 

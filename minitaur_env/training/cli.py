@@ -84,13 +84,30 @@ def suppress_defaults(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
 
 # Flags that may accompany --resume: they change how a session runs, not what is trained.
 HARMLESS_ON_RESUME = {
-    "resume", "n_timesteps", "progress", "num_threads", "device", "verbose", "trust_pickle",
-}  # fmt: skip
+    "resume",
+    "n_timesteps",
+    "progress",
+    "num_threads",
+    "device",
+    "verbose",
+    "trust_pickle",
+}
 # Flags that name config.yml fields one to one.
 CONFIG_FLAGS = (
-    "algo", "backend", "env", "seed", "n_envs", "vec_env", "eval_freq", "eval_episodes",
-    "save_freq", "video_freq", "video_length", "tensorboard_log", "trained_agent",
-)  # fmt: skip
+    "algo",
+    "backend",
+    "env",
+    "seed",
+    "n_envs",
+    "vec_env",
+    "eval_freq",
+    "eval_episodes",
+    "save_freq",
+    "video_freq",
+    "video_length",
+    "tensorboard_log",
+    "trained_agent",
+)
 
 
 def resume_overrides(args: argparse.Namespace, given: set) -> dict[str, Any]:

@@ -120,9 +120,14 @@ def evaluate(args: argparse.Namespace, prog: str) -> int:
         results = None
         if args.episodes:
             records = play(
-                policy, env_id, env_kwargs, args.episodes, args.seed, args.deterministic,
+                policy,
+                env_id,
+                env_kwargs,
+                args.episodes,
+                args.seed,
+                args.deterministic,
                 realism=args.realism,
-            )  # fmt: skip
+            )
             summary = summarize(records)
             mode = "deterministic" if args.deterministic else "stochastic"
             print(f"{args.episodes} episodes, {mode}, seeds {args.seed}..")

@@ -182,8 +182,10 @@ def _check_ranges(hyperparams: dict[str, Any]) -> None:
     """What SB3 accepts and only fails on later, at the first gradient step or never: a
     batch of 0, a buffer smaller than a batch, gamma or tau outside (0, 1]."""
     rules = {
-        "batch_size": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
-                       "an integer >= 1"),
+        "batch_size": (
+            lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1,
+            "an integer >= 1",
+        ),
         "gamma": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
         "tau": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
         # -1: as many gradient steps as env steps collected (SB3's convention)
@@ -191,7 +193,7 @@ def _check_ranges(hyperparams: dict[str, Any]) -> None:
         "learning_starts": (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
         "n_steps": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
         "train_freq": (lambda v: not _is_number(v) or (_is_int(v) and v >= 1), "an integer >= 1"),
-    }  # fmt: skip
+    }
     for name, (valid, rule) in rules.items():
         if name in hyperparams and not valid(hyperparams[name]):
             raise UsageError(f"--hyperparams {name}={hyperparams[name]!r}: must be {rule}")

@@ -206,9 +206,11 @@ class Experiment:
             gamma = config.hyperparams.get("gamma", 0.99)
             self.env = VecNormalize(env, gamma=gamma, **options)
         self.eval_env = make_eval_env(
-            config.env, seed=self.seeds.evaluation(started_at)[0], env_kwargs=config.env_kwargs,
+            config.env,
+            seed=self.seeds.evaluation(started_at)[0],
+            env_kwargs=config.env_kwargs,
             normalize=config.normalize,
-        )  # fmt: skip
+        )
 
     def _fresh_model(self) -> BaseAlgorithm:
         return new_model(self.config, self.env)
@@ -348,10 +350,14 @@ class Experiment:
                     shutil.rmtree(run.path, ignore_errors=True)  # a run that never started
                 if isinstance(error, KeyboardInterrupt):
                     return RunResult(
-                        "interrupted", run, 0, 0, time.perf_counter() - started,
+                        "interrupted",
+                        run,
+                        0,
+                        0,
+                        time.perf_counter() - started,
                         signal=signal_of(error),
                         message="interrupted before training started; nothing was saved",
-                    )  # fmt: skip
+                    )
                 raise
             if self.command:
                 run.append_command(self.command)
@@ -400,10 +406,16 @@ class Experiment:
                 self.close()
             elapsed = time.perf_counter() - started
             result = RunResult(
-                status, run, model.num_timesteps, model.num_timesteps - start_steps, elapsed,
-                checkpoint=checkpoint, signal=stop_signal, message=message,
+                status,
+                run,
+                model.num_timesteps,
+                model.num_timesteps - start_steps,
+                elapsed,
+                checkpoint=checkpoint,
+                signal=stop_signal,
+                message=message,
                 usage_error=usage_error,
-            )  # fmt: skip
+            )
             result.read_evaluations(self.config.env)
             return result
 

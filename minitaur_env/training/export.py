@@ -61,18 +61,26 @@ def sbx_to_sb3(model: Any, env: gym.Env) -> BaseAlgorithm:
     if name not in ("SAC", "TQC"):
         raise ValueError(f"only SBX SAC and TQC export to SB3, not {name}")
     common = {
-        "gamma": model.gamma, "batch_size": model.batch_size, "tau": model.tau,
-        "learning_starts": 0, "device": "cpu",
-    }  # fmt: skip
+        "gamma": model.gamma,
+        "batch_size": model.batch_size,
+        "tau": model.tau,
+        "learning_starts": 0,
+        "device": "cpu",
+    }
     net_arch = {"pi": list(model.policy.net_arch_pi), "qf": list(model.policy.net_arch_qf)}
     if name == "TQC":
         policy = model.policy
         sb3 = TQC(
-            "MlpPolicy", env, top_quantiles_to_drop_per_net=policy.top_quantiles_to_drop_per_net,
-            policy_kwargs={"net_arch": net_arch, "n_quantiles": policy.n_quantiles,
-                           "n_critics": policy.n_critics},
+            "MlpPolicy",
+            env,
+            top_quantiles_to_drop_per_net=policy.top_quantiles_to_drop_per_net,
+            policy_kwargs={
+                "net_arch": net_arch,
+                "n_quantiles": policy.n_quantiles,
+                "n_critics": policy.n_critics,
+            },
             **common,
-        )  # fmt: skip
+        )
         for index, state in enumerate((policy.qf1_state, policy.qf2_state)):
             _copy_mlp(sb3.critic.q_networks[index], state.params["params"])
             _copy_mlp(sb3.critic_target.q_networks[index], state.target_params["params"])

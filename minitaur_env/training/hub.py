@@ -119,8 +119,11 @@ def _write_hub_folder(
 def _commands(training: dict) -> list[str]:
     """A provenance's training commands: one ``command`` or a list of ``commands``."""
     found = training.get("commands") or [training.get("command")]
-    return [command if command.startswith("python") else f"python {command}"
-            for command in found if command]  # fmt: skip
+    return [
+        command if command.startswith("python") else f"python {command}"
+        for command in found
+        if command
+    ]
 
 
 def training_command(model: Path) -> str:

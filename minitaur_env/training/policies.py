@@ -44,16 +44,24 @@ class LayerNormCritic(ContinuousCritic):
         **kwargs: Any,
     ) -> None:
         super().__init__(
-            observation_space, action_space, net_arch, features_extractor, features_dim,
-            activation_fn, **kwargs,
-        )  # fmt: skip
+            observation_space,
+            action_space,
+            net_arch,
+            features_extractor,
+            features_dim,
+            activation_fn,
+            **kwargs,
+        )
         action_dim = self.action_space.shape[0]
         self.q_networks = []
         for index in range(self.n_critics):
             layers = create_mlp(
-                features_dim + action_dim, 1, net_arch, activation_fn,
+                features_dim + action_dim,
+                1,
+                net_arch,
+                activation_fn,
                 post_linear_modules=[nn.LayerNorm],
-            )  # fmt: skip
+            )
             q_net = nn.Sequential(*layers)
             self.add_module(f"qf{index}", q_net)  # replaces SB3's plain one of that name
             self.q_networks.append(q_net)

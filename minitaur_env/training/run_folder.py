@@ -339,8 +339,17 @@ class RunFolder:
         write_yaml(self.config, config, sort_keys=False)
         self.zoo_dir.mkdir(exist_ok=True)
         write_yaml(self.zoo_dir / "config.yml", zoo_hyperparams(config))
-        zoo_args = ("algo", "env", "seed", "n_timesteps", "eval_freq", "eval_episodes",
-                    "save_freq", "env_kwargs", "device")  # fmt: skip
+        zoo_args = (
+            "algo",
+            "env",
+            "seed",
+            "n_timesteps",
+            "eval_freq",
+            "eval_episodes",
+            "save_freq",
+            "env_kwargs",
+            "device",
+        )
         write_yaml(self.zoo_dir / "args.yml", {key: config[key] for key in zoo_args})
         write_yaml(self.zoo_dir / "env_kwargs.yml", config["env_kwargs"] or {})
 
@@ -360,8 +369,10 @@ class RunFolder:
             except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
                 torn = self.evaluations.with_suffix(".npz.unreadable")
                 os.replace(self.evaluations, torn)
-                log(f"{self.evaluations.name} was unreadable ({error}); moved to {torn.name}, "
-                    "the evaluations start again from this session")  # fmt: skip
+                log(
+                    f"{self.evaluations.name} was unreadable ({error}); moved to {torn.name}, "
+                    "the evaluations start again from this session"
+                )
             else:
                 kept = logged["timesteps"] <= steps
                 if not kept.all():
@@ -378,8 +389,10 @@ class RunFolder:
             malformed = [i for i, line in enumerate(lines[2:], start=2) if _episode(line) is None]
             if malformed:
                 write_text(monitor, "".join(t for i, t in enumerate(lines) if i not in malformed))
-                log(f"{monitor.name}: dropped {len(malformed)} malformed line(s), the first "
-                    f"at line {malformed[0] + 1} ({lines[malformed[0]].strip()!r})")  # fmt: skip
+                log(
+                    f"{monitor.name}: dropped {len(malformed)} malformed line(s), the first "
+                    f"at line {malformed[0] + 1} ({lines[malformed[0]].strip()!r})"
+                )
         episodes = self.monitor_episodes()
         episodes.sort(key=lambda episode: (episode.session, episode.time))
         done, dropped = 0, {}
@@ -388,8 +401,11 @@ class RunFolder:
             if done > steps:
                 dropped.setdefault(episode.monitor, set()).add(episode.line)
         for monitor, lines in dropped.items():
-            kept = [text for i, text in enumerate(monitor.read_text().splitlines(True))
-                    if i not in lines]  # fmt: skip
+            kept = [
+                text
+                for i, text in enumerate(monitor.read_text().splitlines(True))
+                if i not in lines
+            ]
             write_text(monitor, "".join(kept))
 
     @staticmethod
@@ -459,9 +475,12 @@ def zoo_hyperparams(config: dict[str, Any]) -> dict[str, Any]:
     """A run's config.yml as the zoo's ``<env>/config.yml`` holds it: one flat entry."""
     return {
         **config.get("hyperparams", {}),
-        **{key: config[key] for key in ("policy", "n_timesteps", "n_envs", "normalize")
-           if key in config},
-    }  # fmt: skip
+        **{
+            key: config[key]
+            for key in ("policy", "n_timesteps", "n_envs", "normalize")
+            if key in config
+        },
+    }
 
 
 def normalizer_json(pickle_path: Path) -> Path:

@@ -90,8 +90,11 @@ def normalizer_content(normalizer: Any) -> dict[str, Any]:
     """VecNormalize's settings and statistics as plain JSON data (no pickle)."""
 
     def stats(rms: Any) -> dict[str, Any]:
-        return {"mean": np.asarray(rms.mean).tolist(), "var": np.asarray(rms.var).tolist(),
-                "count": float(rms.count)}  # fmt: skip
+        return {
+            "mean": np.asarray(rms.mean).tolist(),
+            "var": np.asarray(rms.var).tolist(),
+            "count": float(rms.count),
+        }
 
     return {
         "format": "minitaur_env VecNormalize statistics 1",
@@ -199,8 +202,11 @@ def _checked(content: Any, source: Path) -> dict[str, Any]:
     """The statistics as read, refused in one line where they could not be VecNormalize's:
     a mean and variance of different shapes, a negative or non-finite variance, a count
     or epsilon that is not positive (each would normalize silently wrong)."""
-    missing = [k for k in ("norm_obs", "clip_obs", "epsilon", "obs_rms", "ret_rms")
-               if not isinstance(content, dict) or k not in content]  # fmt: skip
+    missing = [
+        k
+        for k in ("norm_obs", "clip_obs", "epsilon", "obs_rms", "ret_rms")
+        if not isinstance(content, dict) or k not in content
+    ]
     if missing:
         raise UsageError(f"{source}: not VecNormalize statistics (no {', '.join(missing)})")
     for name in ("obs_rms", "ret_rms"):
@@ -293,10 +299,14 @@ def adapting_normalizer(content: dict[str, Any], source: Path) -> Callable[[Any]
 
     def wrap(venv: Any) -> Any:
         normalizer = VecNormalize(
-            venv, norm_obs=content["norm_obs"], norm_reward=content["norm_reward"],
-            clip_obs=content["clip_obs"], clip_reward=content["clip_reward"],
-            gamma=content["gamma"], epsilon=content["epsilon"],
-        )  # fmt: skip
+            venv,
+            norm_obs=content["norm_obs"],
+            norm_reward=content["norm_reward"],
+            clip_obs=content["clip_obs"],
+            clip_reward=content["clip_reward"],
+            gamma=content["gamma"],
+            epsilon=content["epsilon"],
+        )
         for name in ("obs_rms", "ret_rms"):
             rms, saved = getattr(normalizer, name), content[name]
             if np.shape(saved["mean"]) != rms.mean.shape:
@@ -330,8 +340,9 @@ def _trusted_class(path: Path, key: str, entry: dict[str, Any]) -> type:
     try:
         found = getattr(importlib.import_module(module_name), match.group(1))
     except (ImportError, AttributeError) as error:
-        raise UsageError(f"{path}: its {key} {module_name}.{match.group(1)} is not installed "
-                         f"here ({error})") from error  # fmt: skip
+        raise UsageError(
+            f"{path}: its {key} {module_name}.{match.group(1)} is not installed here ({error})"
+        ) from error
     return found
 
 
@@ -428,8 +439,15 @@ def safe_custom_objects(
             replaced[key] = None
         elif key == "train_freq":
             replaced[key] = TrainFreq(1, TrainFrequencyUnit.STEP)
-        elif key in ("_last_obs", "_last_episode_starts", "_last_original_obs", "action_noise",
-                     "ep_info_buffer", "ep_success_buffer", "_last_lstm_states"):  # fmt: skip
+        elif key in (
+            "_last_obs",
+            "_last_episode_starts",
+            "_last_original_obs",
+            "action_noise",
+            "ep_info_buffer",
+            "ep_success_buffer",
+            "_last_lstm_states",
+        ):
             replaced[key] = None
         else:
             raise UntrustedPickle(path, f"its data entry {key!r}")

@@ -112,11 +112,15 @@ def select(
     if min(episodes, select_episodes) < 1:
         raise UsageError("--episodes and --select-episodes must be at least 1")
     report: dict[str, Any] = {
-        "select_seed": select_seed, "report_seed": report_seed, "episodes": episodes,
-        "select_episodes": select_episodes, "final_only": final_only,
+        "select_seed": select_seed,
+        "report_seed": report_seed,
+        "episodes": episodes,
+        "select_episodes": select_episodes,
+        "final_only": final_only,
         "also_on": {label: kwargs for label, kwargs in conditions.items() if label},
-        "runs": {}, "selection": {},
-    }  # fmt: skip
+        "runs": {},
+        "selection": {},
+    }
     log(
         f"{select_episodes} deterministic episodes on selection seeds {select_seed}.., "
         f"{episodes} on report seeds {report_seed}.."
@@ -159,8 +163,10 @@ def select(
     finals = [r["final"]["mean"] for r in report["runs"].values() if "final" in r]
     bests = [r["best"]["mean"] for r in report["runs"].values() if "best" in r]
     if bests and finals:
-        log(f"median over {len(bests)} runs: best model {np.median(bests):.2f}, "
-            f"final model {np.median(finals):.2f} (report seeds)")  # fmt: skip
+        log(
+            f"median over {len(bests)} runs: best model {np.median(bests):.2f}, "
+            f"final model {np.median(finals):.2f} (report seeds)"
+        )
     return report
 
 
@@ -182,8 +188,10 @@ def _figures(result: dict[str, Any]) -> str:
             f"{label or 'own env'}: {_figures(r)}" for label, r in result["conditions"].items()
         )
         return f"{result['mean']:6.2f} mean, {result['falls']} falls in all ({each})"
-    return (f"{result['mean']:6.2f} ± {result['std']:.2f}, {result['falls']} falls, "
-            f"{result['speed']:.2f} m/s")  # fmt: skip
+    return (
+        f"{result['mean']:6.2f} ± {result['std']:.2f}, {result['falls']} falls, "
+        f"{result['speed']:.2f} m/s"
+    )
 
 
 def ship(report: dict[str, Any], target: Path, trust_pickle: bool = False) -> dict[str, Any]:
@@ -253,7 +261,9 @@ def _write_shipped(
     curve = RunCurve.read(run)
     minutes = float(np.interp(steps, curve.steps, curve.seconds)) / 60
     provenance = {
-        "algo": config["algo"], "backend": trained_backend, "env": config["env"],
+        "algo": config["algo"],
+        "backend": trained_backend,
+        "env": config["env"],
         "env_kwargs": config["env_kwargs"],
         "eval_mean_return": round(reported["mean"], 3),
         "eval_std_return": round(reported["std"], 3),
@@ -262,29 +272,37 @@ def _write_shipped(
         "eval_deterministic": True,
         "eval_falls": reported["falls"],
         "eval_mean_speed_m_per_s": round(reported["speed"], 3),
-        "eval_command": f"python evaluate.py --model {published_model} "
-                        f"--episodes {episodes}",
+        "eval_command": f"python evaluate.py --model {published_model} --episodes {episodes}",
         "eval_also_on": [
             {
                 "env_kwargs": report["also_on"][label],
-                "mean_return": round(result["mean"], 3), "std_return": round(result["std"], 3),
-                "falls": result["falls"], "mean_speed_m_per_s": round(result["speed"], 3),
+                "mean_return": round(result["mean"], 3),
+                "std_return": round(result["std"], 3),
+                "falls": result["falls"],
+                "mean_speed_m_per_s": round(result["speed"], 3),
                 "command": f"python evaluate.py --model {published_model} "
-                           f"--episodes {episodes} --env-kwargs {label}",
+                f"--episodes {episodes} --env-kwargs {label}",
             }
             for label, result in also_on.items()
         ],
         "selection": {
             "rule": "most episodes without a fall, then the highest mean, among "
-                    + ("the runs' final models (no checkpoint picking)" if report["final_only"]
-                       else "each run's best model, final model and checkpoints")
-                    + (", falls summed and means averaged over its own env and "
-                       + "; ".join(f"--env-kwargs {label}" for label in also_on)
-                       if also_on else "")
-                    + " (python -m minitaur_env.ship)",
+            + (
+                "the runs' final models (no checkpoint picking)"
+                if report["final_only"]
+                else "each run's best model, final model and checkpoints"
+            )
+            + (
+                ", falls summed and means averaged over its own env and "
+                + "; ".join(f"--env-kwargs {label}" for label in also_on)
+                if also_on
+                else ""
+            )
+            + " (python -m minitaur_env.ship)",
             "seeds": f"{report['select_seed']}.."
-                     f"{report['select_seed'] + report['select_episodes'] - 1}",
-            "mean_return": round(selected["mean"], 3), "falls": selected["falls"],
+            f"{report['select_seed'] + report['select_episodes'] - 1}",
+            "mean_return": round(selected["mean"], 3),
+            "falls": selected["falls"],
             "candidates": {
                 candidate: f"{result['mean']:.2f}, {result['falls']} falls"
                 for candidate, result in report["selection"].items()
@@ -298,21 +316,22 @@ def _write_shipped(
             "trained_steps": max((steps for steps, _ in run.checkpoints()), default=steps),
             "wall_clock_min_to_model": round(minutes, 1) if np.isfinite(minutes) else None,
             "wall_clock_note": "training minutes as the run's monitor files recorded them, "
-                               "on the machine that trained it (a shared one runs slower)",
+            "on the machine that trained it (a shared one runs slower)",
         },
-    }  # fmt: skip
+    }
     if not also_on:
         del provenance["eval_also_on"]
     if as_trained is not None:
         provenance["exported"] = {
             "how": "trained with SBX (JAX); shipped with the same weights in SB3's format "
-                   "by minitaur_env.training.export.sbx_to_sb3; the eval figures above are "
-                   "the shipped file's",
+            "by minitaur_env.training.export.sbx_to_sb3; the eval figures above are "
+            "the shipped file's",
             "sbx_model_on_the_same_seeds": {
                 "mean_return": round(as_trained["mean"], 3),
-                "std_return": round(as_trained["std"], 3), "falls": as_trained["falls"],
+                "std_return": round(as_trained["std"], 3),
+                "falls": as_trained["falls"],
             },
-        }  # fmt: skip
+        }
     provenance["onnx"] = {
         "file": shipped.onnx_policy.name,
         "max_abs_action_difference_from_predict": float(f"{onnx['max_abs_difference']:.2e}"),

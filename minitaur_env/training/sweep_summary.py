@@ -54,8 +54,9 @@ def summarize(
             config = {k: v for k, v in run.read_config().items() if k != "seed"}
             first = trained.setdefault(trial["group"], (config, run))
             if config != first[0]:
-                differ = sorted(k for k in config.keys() | first[0].keys()
-                                if config.get(k) != first[0].get(k))  # fmt: skip
+                differ = sorted(
+                    k for k in config.keys() | first[0].keys() if config.get(k) != first[0].get(k)
+                )
                 raise UsageError(
                     f"{first[1].path} and {run.path} are both {trial['group']!r} but train "
                     f"different configs ({', '.join(differ)}): summarize them apart"

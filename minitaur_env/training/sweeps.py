@@ -104,8 +104,10 @@ class Sweep:
 
     def _check_cluster(self, resources: dict[str, float]) -> None:
         """Refuse trials the cluster could never place: Tune would wait for them forever."""
-        for key, wanted, flag in (("CPU", self.cpus_per_trial, "--cpus-per-trial"),
-                                  ("GPU", self.gpus_per_trial, "--gpus-per-trial")):  # fmt: skip
+        for key, wanted, flag in (
+            ("CPU", self.cpus_per_trial, "--cpus-per-trial"),
+            ("GPU", self.gpus_per_trial, "--gpus-per-trial"),
+        ):
             if wanted > resources.get(key, 0.0):
                 raise UsageError(
                     f"{flag} {wanted:g}: the Ray cluster has {resources.get(key, 0.0):g} "

@@ -35,8 +35,15 @@ def _tune_reporter() -> Any:
     return ReportToTune()
 
 
-TRIAL_SETTINGS = ("base", "seed", "runs", "num_threads", "command", "resume_command",
-                  "__trial_index__")  # fmt: skip
+TRIAL_SETTINGS = (
+    "base",
+    "seed",
+    "runs",
+    "num_threads",
+    "command",
+    "resume_command",
+    "__trial_index__",
+)
 
 
 def set_aside_unresumable(folder: Path, algo: str, env_id: str) -> list[Path]:
