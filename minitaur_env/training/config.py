@@ -138,12 +138,10 @@ class ExperimentConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> ExperimentConfig:
-        """From a config.yml; keys that older versions wrote and this one dropped are ignored."""
+        """From a config.yml. Keys that older versions wrote and this one dropped are
+        ignored: runs kept in benchmarks/results carry one (``overlap_updates``)."""
         fields = {field.name for field in dataclasses.fields(cls)}
-        config = cls(**{key: value for key, value in values.items() if key in fields})
-        if config.vec_env not in VEC_ENVS:  # e.g. "subproc", which grouped replaced
-            config.vec_env = "auto"
-        return config
+        return cls(**{key: value for key, value in values.items() if key in fields})
 
 
 def _whole_number(value: Any, name: str) -> int:

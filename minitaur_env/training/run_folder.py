@@ -194,9 +194,8 @@ class RunFolder:
 
     @property
     def final_model(self) -> Path:
-        """The final model, ``<env>.zip`` (``final_model.zip`` in runs made before)."""
-        legacy = self.path / "final_model.zip"
-        return legacy if legacy.is_file() and not self.zoo_model.is_file() else self.zoo_model
+        """The model the run ended with: ``<env>.zip``, the zoo's name for it."""
+        return self.zoo_model
 
     @property
     def zoo_dir(self) -> Path:
@@ -280,7 +279,7 @@ class RunFolder:
 
     @staticmethod
     def vecnormalize_beside(model: Path) -> Path:
-        """Where the VecNormalize statistics of a best model zip (or a legacy final) are kept."""
+        """Where the VecNormalize statistics of a best model zip are kept."""
         return model.with_name(f"{model.stem}_vecnormalize.pkl")
 
     def vecnormalize_for(self, model: Path) -> Path | None:
