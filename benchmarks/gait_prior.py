@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 
 import minitaur_env  # registers the ids
+from minitaur_env.training.evaluation import run_episodes
 
 CONDITIONS = {
     "classic": ("MinitaurBulletTrot-v0", {}),
@@ -33,21 +34,23 @@ CONDITIONS = {
 }
 
 
+def zero_action_episodes(
+    env_id: str, kwargs: dict[str, Any], episodes: int, action_size: int
+) -> list[dict[str, float]]:
+    """The zero action's episodes on seeds 0.. (``run_episodes``' records)."""
+    env = gym.make(env_id, **kwargs)
+    try:
+        return run_episodes(lambda _: np.zeros(action_size), env, episodes, seed=0)
+    finally:
+        env.close()
+
+
 def play(env_id: str, kwargs: dict[str, Any], episodes: int, action_size: int) -> str:
     """Mean return, mean speed and falls of the zero action over seeded episodes."""
-    returns, speeds, falls = [], [], 0
-    for seed in range(episodes):
-        env = gym.make(env_id, **kwargs)
-        env.reset(seed=seed)
-        total, seconds, terminated, truncated = 0.0, 0.0, False, False
-        while not (terminated or truncated):
-            _, reward, terminated, truncated, info = env.step(np.zeros(action_size))
-            total += float(reward)
-            seconds += env.unwrapped.dt
-        returns.append(total)
-        speeds.append(info["base_position"][0] / seconds)
-        falls += int(terminated)
-        env.close()
+    records = zero_action_episodes(env_id, kwargs, episodes, action_size)
+    returns = [record["return"] for record in records]
+    speeds = [record["speed"] for record in records]
+    falls = int(sum(record["fell"] for record in records))
     return f"{np.mean(returns):6.2f} at {np.mean(speeds):4.2f} m/s, {falls} falls"
 
 
@@ -55,18 +58,10 @@ def pushes_taken(
     env_id: str, force: float, direction: float | None, episodes: int, action_size: int
 ) -> str:
     """Pushes begun and falls over seeded episodes, every push of ``force`` newtons."""
-    pushes, falls = 0, 0
-    for seed in range(episodes):
-        env = gym.make(env_id, pushes={"force": [force, force], "direction": direction})
-        env.reset(seed=seed)
-        pushed, terminated, truncated = False, False, False
-        while not (terminated or truncated):
-            _, _, terminated, truncated, info = env.step(np.zeros(action_size))
-            pushes += info["push_force"].any() and not pushed
-            pushed = bool(info["push_force"].any())
-        falls += int(terminated)
-        env.close()
-    return f"{pushes} pushes, {falls} falls"
+    pushes = {"force": [force, force], "direction": direction}
+    records = zero_action_episodes(env_id, {"pushes": pushes}, episodes, action_size)
+    begun = int(sum(record["pushes"] for record in records))
+    return f"{begun} pushes, {int(sum(record['fell'] for record in records))} falls"
 
 
 def main() -> None:

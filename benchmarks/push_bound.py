@@ -39,6 +39,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import minitaur_env  # noqa: F401  (registers the ids)
+from minitaur_env.training.evaluation import run_episodes
 from minitaur_env.training.hyperparams import parse_overrides
 from minitaur_env.training.seeds import REPORT_SEED, judging_block
 
@@ -74,20 +75,12 @@ class Tally(NamedTuple):
         )
 
 
-def play(policy: Any, env: gym.Env, seeds: range | list[int]) -> Tally:
+def play(policy: Any, env: gym.Env, seeds: range) -> Tally:
     """Falls, pushes begun per episode and the share of pushes survived."""
-    falls, pushes, unpushed = 0, 0, 0
-    for seed in seeds:
-        observation, _ = env.reset(seed=seed)
-        pushing, done, terminated, begun = False, False, False, 0
-        while not done:
-            observation, _, terminated, truncated, info = env.step(policy(observation))
-            started = bool(np.any(info["push_force"]))
-            begun += int(started and not pushing)
-            pushing, done = started, terminated or truncated
-        falls += int(terminated)
-        unpushed += int(terminated and begun == 0)
-        pushes += begun
+    records = run_episodes(policy, env, len(seeds), seed=seeds.start)
+    falls = sum(int(record["fell"]) for record in records)
+    pushes = sum(int(record["pushes"]) for record in records)
+    unpushed = sum(int(record["fell"] and not record["pushes"]) for record in records)
     survived = 1.0 - (falls - unpushed) / max(pushes, 1)
     return Tally(falls, pushes / len(seeds), survived, unpushed)
 

@@ -284,6 +284,7 @@ class ScriptedPushes:
 
     def __init__(self, episodes: list[tuple[list[bool], bool]]) -> None:
         self.episodes, self.episode = episodes, -1
+        self.unwrapped = self  # as a gymnasium Env has
 
     def reset(self, seed: int) -> tuple[int, dict]:
         self.episode, self.t = self.episode + 1, 0

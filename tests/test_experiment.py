@@ -655,5 +655,5 @@ def test_a_run_folder_stands_for_its_final_model_in_every_command(tmp_path):
     assert RunFolder.model_of(run.path) == run.zoo_model  # package and onnx alike
     assert RunFolder.model_of(run.best_model) == run.best_model  # a zip as given
     run.zoo_model.unlink()  # stopped before its end: say so rather than pick another model
-    with pytest.raises(UsageError, match="has no final model .* pass its best_model.zip"):
+    with pytest.raises(UsageError, match=r"has no final model .* pass its best_model\.zip"):
         RunFolder.model_of(run.path)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import pickle
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -248,14 +249,23 @@ def _whole_zip(path: Path) -> bool:
 
 
 def run_episodes(
-    policy: LoadedPolicy | OnnxPolicy,
+    policy: LoadedPolicy | OnnxPolicy | Callable[[np.ndarray], np.ndarray],
     env: gym.Env,
     episodes: int,
     seed: int,
     deterministic: bool = True,
 ) -> list[dict[str, float]]:
-    """One record per episode: return, length, distance, speed, fall, reward terms."""
-    policy.check_spaces(env.observation_space, env.action_space)
+    """One record per episode: return, length, distance, speed, fall, reward terms, and
+    under pushes the pushes begun. The one loop that plays episodes: evaluation, shipping,
+    packaging and the benchmarks all call it. ``policy`` is a loaded policy, or any
+    function of the observation (a benchmark's zero action)."""
+    if isinstance(policy, (LoadedPolicy, OnnxPolicy)):
+        policy.check_spaces(env.observation_space, env.action_space)
+        loaded = policy
+
+        def policy(obs: np.ndarray) -> np.ndarray:
+            return loaded.act(obs, deterministic=deterministic)
+
     records = []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
@@ -265,14 +275,16 @@ def run_episodes(
         totals = dict.fromkeys(REWARD_TERMS, 0.0)
         limits = {"at_torque_limit": 0, "at_velocity_limit": 0}
         slips: list[float] = []
-        episode_return, length = 0.0, 0
+        episode_return, length, pushes, pushing = 0.0, 0, 0, False
         terminated = truncated = False
         while not (terminated or truncated):
-            obs, reward, terminated, truncated, info = env.step(
-                policy.act(obs, deterministic=deterministic)
-            )
+            obs, reward, terminated, truncated, info = env.step(policy(obs))
             episode_return += float(reward)
             length += 1
+            if "push_force" in info:  # count a push when it begins
+                pushed = bool(np.any(info["push_force"]))
+                pushes += int(pushed and not pushing)
+                pushing = pushed
             for term in REWARD_TERMS:
                 totals[term] += float(info.get(term, 0.0))
             if "foot_slip" in info:  # a RealismProbe (play(..., realism=True))
@@ -281,6 +293,8 @@ def run_episodes(
                 if not np.isnan(info["foot_slip"]):
                     slips.append(info["foot_slip"])
         record = {"return": episode_return, "length": float(length), "fell": float(terminated)}
+        if "push_force" in info:
+            record["pushes"] = float(pushes)
         if "base_position" in info:
             distance = float(np.asarray(info["base_position"])[0] - start[0])
             record["distance"] = distance
