@@ -39,11 +39,14 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import minitaur_env  # noqa: F401  (registers the ids)
+from minitaur_env.training.callbacks import PushCurriculum
 from minitaur_env.training.evaluation import run_episodes
-from minitaur_env.training.hyperparams import parse_overrides
+from minitaur_env.training.hyperparams import algorithm_kwargs, load_hyperparams, parse_overrides
 from minitaur_env.training.seeds import REPORT_SEED, judging_block
 
 REPORT_SEEDS = judging_block(REPORT_SEED, 20)
+# The entry's keys that say how to build the run, not arguments of PPO itself.
+ENTRY_SETTINGS = ("n_timesteps", "policy", "n_envs", "normalize")
 
 
 class SurvivalReward(gym.Wrapper):
@@ -83,22 +86,6 @@ def play(policy: Any, env: gym.Env, seeds: range) -> Tally:
     unpushed = sum(int(record["fell"] and not record["pushes"]) for record in records)
     survived = 1.0 - (falls - unpushed) / max(pushes, 1)
     return Tally(falls, pushes / len(seeds), survived, unpushed)
-
-
-class PushRamp(BaseCallback):
-    """Training pushes at ``steps / ramp_steps`` of full force, 1 from then on."""
-
-    def __init__(self, ramp_steps: int) -> None:
-        super().__init__()
-        self.ramp_steps = ramp_steps
-
-    def _on_rollout_start(self) -> None:
-        scale = min(1.0, self.num_timesteps / max(self.ramp_steps, 1))
-        for env in self.training_env.venv.envs:
-            env.unwrapped.set_push_scale(scale)
-
-    def _on_step(self) -> bool:
-        return True
 
 
 class Evaluation(BaseCallback):
@@ -174,25 +161,16 @@ def main(argv: list[str] | None = None) -> None:
         by_force(args, kwargs, policies)
         return
 
-    venv = DummyVecEnv([lambda: make_env(args.env, kwargs, args.history) for _ in range(8)])
+    # The PPO entry of the Minitaur (ppo.yml), on the survival reward.
+    entry = load_hyperparams("ppo", args.env, entry="minitaur")
+    envs = [lambda: make_env(args.env, kwargs, args.history)] * entry["n_envs"]
+    venv = DummyVecEnv(envs)
     venv.seed(args.seed)
-    venv = VecNormalize(venv, gamma=0.99)
-    model = PPO(
-        "MlpPolicy",
-        venv,
-        n_steps=256,
-        batch_size=256,
-        n_epochs=10,
-        learning_rate=2.5e-4,
-        gamma=0.99,
-        gae_lambda=0.95,
-        ent_coef=0.0,
-        clip_range=0.2,
-        seed=args.seed,
-        policy_kwargs={"net_arch": [256, 256], "log_std_init": -1.0},
-    )
+    venv = VecNormalize(venv, gamma=entry["gamma"])
+    settings = {key: value for key, value in entry.items() if key not in ENTRY_SETTINGS}
+    model = PPO(entry["policy"], venv, seed=args.seed, **algorithm_kwargs(settings))
     callbacks = [
-        PushRamp(int(args.ramp * args.timesteps)),
+        PushCurriculum(start=0.0, full_at=int(args.ramp * args.timesteps)),
         Evaluation(evaluation_env, args.eval_freq, args.eval_episodes),
     ]
     model.learn(args.timesteps, callback=callbacks)
