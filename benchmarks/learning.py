@@ -25,8 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from minitaur_env.training.aggregate import GroupSummary, RunCurve, format_rows
-from minitaur_env.training.plotting import figure, save_figure
+from minitaur_env.training.aggregate import GroupSummary, RunCurve, format_rows, plot_iqm_curves
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -55,25 +54,6 @@ def train(args: argparse.Namespace, seed: int, extra: list[str]) -> Path:
     if result.returncode != 0 or not match:
         sys.exit(f"train.py failed for seed {seed}: {result.stderr.strip().splitlines()[-1:]}")
     return Path(match.group(1))
-
-
-def plot(groups: list[GroupSummary], path: Path, threshold: float) -> None:
-    """IQM over seeds with its 95 % CI band, against env steps and against minutes."""
-    fig, (by_steps, by_time) = figure(2, figsize=(12, 4.5))
-    for group in groups:
-        grid, stats = group.iqm_curve()
-        label = f"{group.name} ({len(group.curves)} seeds)"
-        for ax, x in ((by_steps, grid), (by_time, group.median_minutes(grid))):
-            line = ax.plot(x, stats[:, 0], label=label)
-            ax.fill_between(x, stats[:, 1], stats[:, 2], alpha=0.2, color=line[0].get_color())
-    for ax, xlabel in ((by_steps, "env steps"), (by_time, "wall-clock (min), median run")):
-        ax.axhline(threshold, color="grey", linestyle="--", label="reward threshold")
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("eval return: IQM over seeds, 95% CI")
-        ax.grid(alpha=0.3)
-    by_steps.legend(loc="best", fontsize=8)
-    save_figure(fig, path)
-    print(f"plot: {path}")
 
 
 def main() -> None:
@@ -121,7 +101,8 @@ def main() -> None:
     print()
     print(format_rows([group.row() for group in groups]))
     if args.plot:
-        plot(groups, args.plot, args.threshold)
+        plot_iqm_curves(groups, args.plot, args.threshold, by_minutes=True)
+        print(f"plot: {args.plot}")
 
 
 if __name__ == "__main__":

@@ -244,22 +244,34 @@ def _cell(value: object) -> str:
     return str(value)
 
 
-def plot_iqm_curves(groups: list[GroupSummary], path: Path, threshold: float | None) -> None:
-    """IQM of the eval return over seeds against env steps, with its 95 % CI band."""
+def plot_iqm_curves(
+    groups: list[GroupSummary], path: Path, threshold: float | None, by_minutes: bool = False
+) -> None:
+    """IQM of the eval return over seeds against env steps, with its 95 % CI band; with
+    ``by_minutes`` a second panel against the median run's wall-clock minutes."""
     from minitaur_env.training.plotting import figure, save_figure
 
-    fig, ax = figure(figsize=(8, 4.5))
+    if by_minutes:
+        fig, (by_steps, by_time) = figure(2, figsize=(12, 4.5))
+        panels = [(by_steps, "env steps"), (by_time, "wall-clock (min), median run")]
+    else:
+        fig, by_steps = figure(figsize=(8, 4.5))
+        panels = [(by_steps, "env steps")]
     for group in groups:
         if not group.curves:
             continue
         grid, stats = group.iqm_curve()
-        line = ax.plot(grid, stats[:, 0], label=f"{group.name} ({len(group.curves)} seeds)")
-        ax.fill_between(grid, stats[:, 1], stats[:, 2], alpha=0.2, color=line[0].get_color())
-    if threshold is not None:
-        ax.axhline(threshold, color="grey", linestyle="--", label="reward threshold")
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("eval return, IQM over seeds (95% CI)")
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="best", fontsize=8)
+        label = f"{group.name} ({len(group.curves)} seeds)"
+        for ax, xlabel in panels:
+            x = grid if xlabel == "env steps" else group.median_minutes(grid)
+            line = ax.plot(x, stats[:, 0], label=label)
+            ax.fill_between(x, stats[:, 1], stats[:, 2], alpha=0.2, color=line[0].get_color())
+    for ax, xlabel in panels:
+        if threshold is not None:
+            ax.axhline(threshold, color="grey", linestyle="--", label="reward threshold")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("eval return, IQM over seeds (95% CI)")
+        ax.grid(alpha=0.3)
+    if by_steps.get_legend_handles_labels()[0]:
+        by_steps.legend(loc="best", fontsize=8)
     save_figure(fig, path)
