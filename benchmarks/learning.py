@@ -8,10 +8,14 @@ return per seed, median, IQM with its 95 % bootstrap CI, steps and minutes to 5 
 ``--plot`` draws the IQM curves with their CI bands against env steps and wall-clock.
 
     python benchmarks/learning.py --algo ppo -n 300000 --seeds 0 1 2 -- --eval-episodes 10
+    python benchmarks/learning.py --algo sac ppo -n 150000 --seeds 0 1 2   # timed side by side
     python benchmarks/learning.py --group sac logs/sac/M_4 logs/sac/M_5 --group ppo ... \\
         --at 50000 100000 150000 --plot learning.png
 
-Arguments after ``--`` go to train.py unchanged. For many seeds or a search, use
+Several ``--algo`` train seed by seed in turn (sac seed 0, ppo seed 0, sac seed 1, ...) so
+that a machine whose speed swings treats both alike, and the last lines give each
+algorithm's steps and minutes to each milestone as a ratio to ``--baseline``'s (PPO's by
+default). Arguments after ``--`` go to train.py unchanged. For many seeds or a search, use
 ``python -m minitaur_env.sweep``, which writes the same table.
 """
 
@@ -30,12 +34,12 @@ from minitaur_env.training.aggregate import GroupSummary, RunCurve, format_rows,
 REPO = Path(__file__).resolve().parents[1]
 
 
-def train(args: argparse.Namespace, seed: int, extra: list[str]) -> Path:
+def train(args: argparse.Namespace, algo: str, seed: int, extra: list[str]) -> Path:
     command = [
         sys.executable,
         str(REPO / "train.py"),
         "--algo",
-        args.algo,
+        algo,
         "--backend",
         args.backend,
         "-n",
@@ -56,12 +60,38 @@ def train(args: argparse.Namespace, seed: int, extra: list[str]) -> Path:
     return Path(match.group(1))
 
 
+def ratio_lines(rows: list[dict[str, object]], baseline: str) -> list[str]:
+    """Each group's median steps and minutes to each milestone, as a ratio to the
+    baseline group's (empty where there is no such group)."""
+    base = next((row for row in rows if row["config"] == baseline), None)
+    if base is None:
+        return []
+    lines = []
+    milestones = [
+        key.removeprefix("median_steps_to_") for key in base if key.startswith("median_steps_to_")
+    ]
+    for row in rows:
+        if row is base:
+            continue
+        for milestone in milestones:
+            cells = []
+            for measure, shown in (("steps", "{:,.0f} steps"), ("minutes", "{:.1f} min")):
+                key = f"median_{measure}_to_{milestone}"
+                mine, theirs = float(row[key]), float(base[key])
+                ratio = mine / theirs if theirs > 0 and np.isfinite(mine) else float("nan")
+                mine_text, theirs_text = shown.format(mine), shown.format(theirs)
+                cells.append(f"{mine_text} = {ratio:.2f}x {baseline}'s {theirs_text}")
+            lines.append(f"{row['config']} to {milestone}: " + "; ".join(cells))
+    return lines
+
+
 def main() -> None:
     argv = sys.argv[1:]
     extra = argv[argv.index("--") + 1 :] if "--" in argv else []
     argv = argv[: argv.index("--")] if "--" in argv else argv
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--algo", default="sac")
+    parser.add_argument("--algo", nargs="+", default=["sac"], help="one or more algorithms")
+    parser.add_argument("--baseline", default="ppo", help="the group ratios are taken to")
     parser.add_argument("--backend", default="sb3")
     parser.add_argument("-n", "--n-timesteps", type=int, default=300_000)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -81,7 +111,11 @@ def main() -> None:
     if args.group:
         labelled = [(group[0], [Path(p) for p in group[1:]]) for group in args.group]
     else:
-        labelled = [(args.algo, [train(args, seed, extra) for seed in args.seeds])]
+        runs: dict[str, list[Path]] = {algo: [] for algo in args.algo}
+        for seed in args.seeds:  # in turn, so that the machine's swings hit all alike
+            for algo in args.algo:
+                runs[algo].append(train(args, algo, seed, extra))
+        labelled = list(runs.items())
     groups = [GroupSummary(label, [RunCurve.read(r) for r in runs], []) for label, runs in labelled]
 
     header = "".join(f"{f'@{s // 1000}k':>10}" for s in args.at)
@@ -99,7 +133,10 @@ def main() -> None:
         )
         print(f"{group.name:<14}{'median over the runs that got that far':<44}{medians}")
     print()
-    print(format_rows([group.row() for group in groups]))
+    rows = [group.row() for group in groups]
+    print(format_rows(rows))
+    for line in ratio_lines(rows, args.baseline):
+        print(line)
     if args.plot:
         plot_iqm_curves(groups, args.plot, args.threshold, by_minutes=True)
         print(f"plot: {args.plot}")

@@ -1,8 +1,7 @@
 """The speed and robustness benchmark scripts, each on the smallest budget that still runs
 every code path they time, judged by what they print: the figures parse, they agree with
 the baselines and commands they name, and a setting that would skew a figure is caught.
-(keep_runs.py, minitaur_table.py: test_benchmark_table.py; learning.py and
-classic_control.py: test_classic_control.py.)"""
+(keep_runs.py, minitaur_table.py: test_benchmark_table.py.)"""
 
 from __future__ import annotations
 
@@ -312,3 +311,26 @@ def test_push_bound_blames_a_fall_on_the_pushes_only_after_one_began():
     only_pushed = push_bound.play(lambda _: 0, ScriptedPushes(episodes[::2]), range(2))
     assert only_pushed == (1, 1.5, pytest.approx(2 / 3), 0)
     assert "before any push" not in only_pushed.line(2)
+
+
+def test_learning_prints_each_groups_steps_and_minutes_as_a_ratio_to_the_baseline(tmp_path):
+    kept = REPO / "benchmarks" / "results"
+    result = run_script(
+        "benchmarks/learning.py", "--group", "sac", *(str(kept / "sac-default" / f"seed{s}")
+        for s in range(5)), "--group", "ppo", *(str(kept / "ppo-default" / f"seed{s}")
+        for s in range(3)), "--at", "150000", cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    lines = [line for line in result.stdout.splitlines() if line.startswith("sac to 15: ")]
+    (line,) = lines
+    found = re.fullmatch(
+        r"sac to 15: ([0-9,]+) steps = ([0-9.]+)x ppo's ([0-9,]+) steps; "
+        r"([0-9.]+) min = ([0-9.]+)x ppo's ([0-9.]+) min",
+        line,
+    )
+    assert found, line
+    steps, steps_ratio, ppo_steps, minutes, minutes_ratio, ppo_minutes = found.groups()
+    number = lambda text: float(text.replace(",", ""))  # noqa: E731
+    assert number(steps_ratio) == pytest.approx(number(steps) / number(ppo_steps), abs=0.01)
+    assert number(minutes_ratio) == pytest.approx(number(minutes) / number(ppo_minutes), abs=0.01)
+    assert not [line for line in result.stdout.splitlines() if line.startswith("ppo to ")]
