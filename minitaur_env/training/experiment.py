@@ -173,9 +173,6 @@ class Experiment:
         return cls(config, run, resume=True, trust_pickle=trust_pickle, **options)
 
     # -- building ---------------------------------------------------------------
-    def _algorithm(self) -> type[BaseAlgorithm]:
-        return algorithm_class(self.config.algo, self.config.backend)
-
     @property
     def seeds(self) -> SeedPlan:
         try:
