@@ -27,7 +27,7 @@ from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.files import load_pickle
 from minitaur_env.training.hyperparams import load_hyperparams
 from minitaur_env.training.replay_buffer import load_replay_buffer
-from tests.scripts import needs
+from tests.scripts import REPO, needs
 
 # Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -657,3 +657,23 @@ def test_a_run_folder_stands_for_its_final_model_in_every_command(tmp_path):
     run.zoo_model.unlink()  # stopped before its end: say so rather than pick another model
     with pytest.raises(UsageError, match=r"has no final model .* pass its best_model\.zip"):
         RunFolder.model_of(run.path)
+
+
+def test_the_robust_recipe_is_an_entry_that_reproduces_the_shipped_robust_ppos_settings():
+    import yaml
+
+    shipped = yaml.safe_load(
+        (REPO / "pretrained/ppo/MinitaurBulletTrotRandomized-v0_1/config.yml").read_text()
+    )
+    for how in ({}, {"entry": "robust"}):
+        config = ExperimentConfig.resolve("ppo", "MinitaurBulletTrotRandomized-v0", **how)
+        assert config.env_kwargs == shipped["env_kwargs"] == {"history": 4}
+        assert config.hyperparams == shipped["hyperparams"]
+        assert (config.n_timesteps, config.n_envs) == (shipped["n_timesteps"], shipped["n_envs"])
+    # --env-kwargs still decide over the entry's
+    mine = ExperimentConfig.resolve(
+        "ppo", "MinitaurBulletTrotRandomized-v0", env_kwargs={"history": 2, "pushes": True}
+    )
+    assert mine.env_kwargs == {"history": 2, "pushes": True}
+    # and the classic entry has none
+    assert ExperimentConfig.resolve("ppo", "MinitaurBulletEnv-v0").env_kwargs == {}

@@ -63,11 +63,16 @@ class ExperimentConfig:
         """The hyperparameter file's entry for ``env`` (or ``entry``), with overrides.
 
         ``hyperparams`` may also set the run keys ``n_timesteps``, ``n_envs``,
-        ``normalize`` and ``policy``; ``settings`` are the other fields.
+        ``normalize`` and ``policy``; ``settings`` are the other fields. An entry's
+        ``env_kwargs`` (a recipe's env settings) are the defaults of ``env_kwargs``.
         """
         table = load_hyperparams(algo, env, conf_file, entry)
         table.update(hyperparams or {})
         run = {key: table.pop(key) for key in RUN_KEYS if key in table}
+        entry_env_kwargs = table.pop("env_kwargs", None) or {}
+        if not isinstance(entry_env_kwargs, dict):
+            raise UsageError(f"env_kwargs of the {entry or env} entry must be a mapping")
+        settings["env_kwargs"] = {**entry_env_kwargs, **(settings.get("env_kwargs") or {})}
         if n_timesteps is not None:
             run["n_timesteps"] = n_timesteps
         if n_envs is not None:
