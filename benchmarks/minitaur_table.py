@@ -33,10 +33,9 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from learning import plot  # benchmarks/ is on the path of a script run from it
 
 from minitaur_env.training import UsageError
-from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
+from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci, plot_iqm_curves
 from minitaur_env.training.files import atomic_path
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.seeds import REPORT_SEED
@@ -225,7 +224,7 @@ def main(argv: list[str] | None = None) -> None:
         "'-': no final model kept, or the milestone never reached"
     )
     if args.plot and groups:
-        plot(groups, args.plot, 15.0)
+        plot_iqm_curves(groups, args.plot, 15.0, by_minutes=True)
 
 
 if __name__ == "__main__":

@@ -239,9 +239,6 @@ def package(args: argparse.Namespace) -> int:
         from minitaur_env.training.hub import package_for_hub
     except ImportError as error:
         raise UsageError(f"{error} (pip install 'minitaur-env[zoo]')") from error
-    from minitaur_env.training.files import ensure_writable
-
-    ensure_writable(args.out)  # before the episodes and the video
     folder = package_for_hub(
         args.run_or_model,
         args.out,

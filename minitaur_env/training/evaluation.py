@@ -259,7 +259,7 @@ def run_episodes(
     under pushes the pushes begun. The one loop that plays episodes: evaluation, shipping,
     packaging and the benchmarks all call it. ``policy`` is a loaded policy, or any
     function of the observation (a benchmark's zero action)."""
-    if isinstance(policy, (LoadedPolicy, OnnxPolicy)):
+    if hasattr(policy, "act"):  # a LoadedPolicy, an OnnxPolicy or one like them
         policy.check_spaces(env.observation_space, env.action_space)
         loaded = policy
 

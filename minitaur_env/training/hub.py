@@ -27,7 +27,7 @@ from minitaur_env.training.evaluation import (
     playing_kwargs,
     summarize,
 )
-from minitaur_env.training.files import read_yaml, replaced_folder
+from minitaur_env.training.files import ensure_writable, read_yaml, replaced_folder
 from minitaur_env.training.run_folder import (
     HUB_VECNORMALIZE,
     ONNX_POLICY,
@@ -58,6 +58,7 @@ def package_for_hub(
         raise UsageError(
             "packaging needs huggingface_hub: pip install 'minitaur-env[zoo]'"
         ) from error
+    ensure_writable(out_dir)  # before the episodes and the video
     policy = load_policy(RunFolder.model_of(run_or_model), trust_pickle=trust_pickle)
     env_id = env_id or policy.env_id
     if not env_id:

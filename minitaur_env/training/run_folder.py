@@ -194,7 +194,7 @@ class RunFolder:
 
     @property
     def final_model(self) -> Path:
-        """The model the run ended with: ``<env>.zip``, the zoo's name for it."""
+        """``<env>.zip``, the model the run ended with (the zoo's name for it)."""
         return self.zoo_model
 
     @property
