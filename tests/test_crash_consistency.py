@@ -228,6 +228,11 @@ def _train_until_killed_after_checkpoint(logs: str, step: int) -> None:
         return path
 
     callbacks.save_checked_checkpoint = save_then_die
+    _train_short_run(logs)
+
+
+def _train_short_run(logs: str) -> None:
+    """A 300-step run evaluated and checkpointed every 100 steps (in a child: exits)."""
     config = ExperimentConfig.resolve(
         "sac", "ShortPendulum-v0", hyperparams=NORMALIZED_SAC, n_timesteps=300,
         eval_freq=100, eval_episodes=1, save_freq=100, vec_env="dummy", device="cpu",
@@ -236,17 +241,22 @@ def _train_until_killed_after_checkpoint(logs: str, step: int) -> None:
     os._exit(0)
 
 
+def killed_run(tmp_path, train_until_killed, step: int) -> RunFolder:
+    """The run folder a child left when ``train_until_killed`` killed it at ``step``."""
+    child = preloaded_forkserver().Process(
+        target=train_until_killed, args=(str(tmp_path / "logs"), step)
+    )
+    child.start()
+    child.join(timeout=600)
+    assert child.exitcode == 9
+    return RunFolder(tmp_path / "logs" / "sac" / "ShortPendulum-v0_1")
+
+
 def test_a_kill_after_a_checkpoint_on_an_evaluation_step_loses_no_evaluation(tmp_path):
     # Found by the soak below: the checkpoint at 200 was written before the evaluation at
     # 200, so a kill between them resumed from 200 and never evaluated it. Evaluations
     # now come first: a checkpoint's step has its evaluation on disk.
-    context = preloaded_forkserver()
-    child = context.Process(target=_train_until_killed_after_checkpoint,
-                            args=(str(tmp_path / "logs"), 200))  # fmt: skip
-    child.start()
-    child.join(timeout=600)
-    assert child.exitcode == 9
-    run = RunFolder(tmp_path / "logs" / "sac" / "ShortPendulum-v0_1")
+    run = killed_run(tmp_path, _train_until_killed_after_checkpoint, 200)
     assert max(steps for steps, _ in run.checkpoints()) == 200
     assert Experiment.resume(run.path, verbose=0).run().status == "completed"
     with np.load(run.evaluations) as data:
@@ -267,12 +277,7 @@ def _train_until_killed_after_evaluation(logs: str, step: int) -> None:
         return True
 
     callbacks.PublishEvaluations._on_step = publish_then_die
-    config = ExperimentConfig.resolve(
-        "sac", "ShortPendulum-v0", hyperparams=NORMALIZED_SAC, n_timesteps=300,
-        eval_freq=100, eval_episodes=1, save_freq=100, vec_env="dummy", device="cpu",
-    )  # fmt: skip
-    Experiment.create(config, logs, verbose=0, progress="none").run()
-    os._exit(0)
+    _train_short_run(logs)
 
 
 def progress_steps(run: RunFolder) -> list[float]:
@@ -287,13 +292,7 @@ def progress_steps(run: RunFolder) -> list[float]:
 
 
 def test_a_kill_between_an_evaluation_and_its_checkpoint_leaves_one_history(tmp_path):
-    context = preloaded_forkserver()
-    child = context.Process(target=_train_until_killed_after_evaluation,
-                            args=(str(tmp_path / "logs"), 200))  # fmt: skip
-    child.start()
-    child.join(timeout=600)
-    assert child.exitcode == 9
-    run = RunFolder(tmp_path / "logs" / "sac" / "ShortPendulum-v0_1")
+    run = killed_run(tmp_path, _train_until_killed_after_evaluation, 200)
     assert max(steps for steps, _ in run.checkpoints()) == 100  # the 200 checkpoint never came
     before = progress_steps(run)
     assert max(before) > 100  # the abandoned branch logged rows past the checkpoint
