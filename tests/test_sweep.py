@@ -232,18 +232,25 @@ def sweep_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "minitaur_env.sweep", *args]
 
 
-def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
-    # Cut at the 500-step checkpoint, with 1000 steps left so the cut lands before the end.
-    args = [*SWEEP_ARGS, "-n", "1500", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
+def sweep_at_its_first_checkpoint(tmp_path, args: list[str], name: str) -> subprocess.Popen:
+    """A sweep process, once one of its trials wrote its 500-step checkpoint."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(
         sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, env=env, start_new_session=True,
     )  # fmt: skip
     deadline = time.monotonic() + 900  # generous: a machine 5x slower still gets there
-    while not list(tmp_path.glob("cut/runs/*/sac/*/checkpoints/rl_model_500_steps.zip")):
+    while not list(tmp_path.glob(f"{name}/runs/*/sac/*/checkpoints/rl_model_500_steps.zip")):
         assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
         time.sleep(0.5)
+    return process
+
+
+def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
+    # Cut at the 500-step checkpoint, with 1000 steps left so the cut lands before the end.
+    args = [*SWEEP_ARGS, "-n", "1500", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    process = sweep_at_its_first_checkpoint(tmp_path, args, "cut")
     os.killpg(process.pid, signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, stderr
@@ -269,15 +276,7 @@ def test_sigterm_to_the_sweep_stops_it_as_ctrl_c_does_and_says_how_to_resume(tmp
     # A scheduler's or kill's SIGTERM to the driver: Ray's handler printed a C++ stack dump
     # and no resume hint. Now the trials stop at their checkpoints and the exit is 143.
     args = [*SWEEP_ARGS, "-n", "3000", "--seeds", "1", "-f", str(tmp_path), "--name", "term"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    process = subprocess.Popen(
-        sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True, env=env, start_new_session=True,
-    )  # fmt: skip
-    deadline = time.monotonic() + 900
-    while not list(tmp_path.glob("term/runs/*/sac/*/checkpoints/rl_model_500_steps.zip")):
-        assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
-        time.sleep(0.5)
+    process = sweep_at_its_first_checkpoint(tmp_path, args, "term")
     process.send_signal(signal.SIGTERM)  # the driver alone, as `kill PID` sends it
     _, stderr = process.communicate(timeout=300)
     assert process.returncode == 143, stderr
