@@ -43,7 +43,7 @@ PRESETS = {
     "preset (MinitaurBulletRandomized-v0)": ("MinitaurBulletRandomized-v0", {}),
     "preset + trot prior, pushes, history 4": (
         "MinitaurBulletTrotRandomized-v0",
-        {"pushes": True, "history": 4},
+        {"realism": {"pushes": True}, "history": 4},
     ),
 }
 

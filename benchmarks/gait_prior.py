@@ -30,7 +30,7 @@ from minitaur_env.training.evaluation import run_episodes
 CONDITIONS = {
     "classic": ("MinitaurBulletTrot-v0", {}),
     "tan2018": ("MinitaurBulletTrotRandomized-v0", {}),
-    "tan2018 + pushes": ("MinitaurBulletTrotRandomized-v0", {"pushes": True}),
+    "tan2018 + pushes": ("MinitaurBulletTrotRandomized-v0", {"realism": {"pushes": True}}),
 }
 
 
@@ -59,7 +59,7 @@ def pushes_taken(
 ) -> str:
     """Pushes begun and falls over seeded episodes, every push of ``force`` newtons."""
     pushes = {"force": [force, force], "direction": direction}
-    records = zero_action_episodes(env_id, {"pushes": pushes}, episodes, action_size)
+    records = zero_action_episodes(env_id, {"realism": {"pushes": pushes}}, episodes, action_size)
     begun = int(sum(record["pushes"] for record in records))
     return f"{begun} pushes, {int(sum(record['fell'] for record in records))} falls"
 

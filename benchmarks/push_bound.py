@@ -1,10 +1,10 @@
 """How often can a policy whose only job is not to fall survive the env's pushes?
 
 An upper bound for a pushes goal (<= 2 falls in 20 episodes under
-``pushes=true``): PPO (the Minitaur entry's settings) learns to stay up under Tan et al.'s
-pushes (130-220 N for 0.06 s every 1.2 s, any horizontal direction) with a reward of 1
-per step survived instead of the env's. Nothing else asks anything of it: it may stand,
-crouch or walk. The training pushes grow from 0 to full force over the first
+``realism={pushes: true}``): PPO (the Minitaur entry's settings) learns to stay up
+under Tan et al.'s pushes (130-220 N for 0.06 s every 1.2 s, any horizontal direction)
+with a reward of 1 per step survived instead of the env's. Nothing else asks anything of
+it: it may stand, crouch or walk. The training pushes grow from 0 to full force over the first
 ``--ramp`` of the steps; evaluations push at full force. It sees roll, pitch, their
 rates and the motor angles (``observation="imu"``) for the last ``--history`` steps.
 
@@ -15,7 +15,7 @@ at rest (the zero action).
 
 With ``--forces F ...`` it also prints, for the zero action and the trained policy, the
 share survived of pushes of exactly F newtons each, in the direction ``pushes`` sets
-(``--env-kwargs 'pushes={direction: 90}'`` trains and tests on pushes from the side only)
+(``--env-kwargs 'realism={pushes: {direction: 90}}'`` trains and tests on pushes from the side only)
 or in each of ``--directions`` (degrees, 0 forward). ``-n 0`` trains nothing: the zero
 action alone, e.g. ``-n 0 --forces 60 130 220 --directions 0 45 90``.
 
@@ -57,8 +57,14 @@ class SurvivalReward(gym.Wrapper):
         return observation, 1.0, terminated, truncated, info
 
 
+def with_pushes(kwargs: dict[str, Any], pushes: Any) -> dict[str, Any]:
+    """``kwargs`` with its realism's ``pushes`` set to ``pushes``."""
+    return {**kwargs, "realism": {**kwargs.get("realism", {}), "pushes": pushes}}
+
+
 def make_env(env_id: str, kwargs: dict[str, Any], history: int) -> gym.Env:
-    env = gym.make(env_id, **{"pushes": True, "observation": "imu", **kwargs})
+    pushes = kwargs.get("realism", {}).get("pushes", True)
+    env = gym.make(env_id, **{"observation": "imu", **with_pushes(kwargs, pushes)})
     if history > 1:
         env = FlattenObservation(FrameStackObservation(env, history))
     return SurvivalReward(env)
@@ -185,13 +191,13 @@ def by_force(
     policies: dict[str, Callable[[np.ndarray], np.ndarray]],
 ) -> None:
     """Per force (and direction) and policy: the share of pushes survived on the report seeds."""
-    pushes = kwargs.get("pushes", True)
+    pushes = kwargs.get("realism", {}).get("pushes", True)
     pushes = {} if pushes is True else dict(pushes)
     directions = args.directions or [pushes.get("direction")]
     for force in args.forces:
         for direction in directions:
             setting = {**pushes, "force": (force, force), "direction": direction}
-            env = make_env(args.env, {**kwargs, "pushes": setting}, args.history)
+            env = make_env(args.env, with_pushes(kwargs, setting), args.history)
             label = f"{force:>6.0f} N" + (f"  {direction:>4.0f} deg" if args.directions else "")
             for name, policy in policies.items():
                 print(

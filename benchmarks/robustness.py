@@ -35,11 +35,11 @@ ENV_ID = "MinitaurBulletEnv-v0"
 GAIT_ENV_ID = "MinitaurBulletTrot-v0"
 CONDITIONS: dict[str, dict[str, Any]] = {
     "nominal": {},
-    "latency 20 ms": {"control_latency": 0.02},
-    "latency 40 ms": {"control_latency": 0.04},
+    "latency 20 ms": {"realism": {"control_latency": 0.02}},
+    "latency 40 ms": {"realism": {"control_latency": 0.04}},
     "motor strength 80 %": {"dynamics_ranges": {"motor_strength": [0.8, 0.8]}},
     "contact friction 0.5": {"dynamics_ranges": {"foot_friction": [0.5, 0.5]}},
-    "pushes": {"pushes": True},
+    "pushes": {"realism": {"pushes": True}},
     "full preset": dict(RANDOMIZED_KWARGS),
 }
 

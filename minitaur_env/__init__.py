@@ -3,7 +3,8 @@
 Importing the package registers ``MinitaurBullet-v0``, the classic id
 ``MinitaurBulletEnv-v0`` (the same env), ``MinitaurBulletDuckEnv-v0`` and
 ``MinitaurBulletRandomized-v0``: the same task under Tan et al. 2018's randomization
-(:meth:`DynamicsRanges.tan2018`) with a 3 ms PD latency. ``MinitaurBulletTrot-v0`` and
+(``preset="tan2018"``: :meth:`DynamicsRanges.tan2018` and :meth:`Realism.tan2018`) with a
+3 ms PD latency. ``MinitaurBulletTrot-v0`` and
 ``MinitaurBulletTrotRandomized-v0`` are the first and the last with a gait prior: the
 policy modulates a trotting generator and adds residuals (:class:`TrottingGait`).
 """
@@ -37,7 +38,7 @@ ENV_IDS = (
 )
 
 # Plain values only, so that the zoo's env_kwargs.yml and --env-kwargs can state them.
-RANDOMIZED_KWARGS = {"dynamics_ranges": "tan2018", "pd_latency": 0.003}
+RANDOMIZED_KWARGS = {"preset": "tan2018"}
 
 _SPECS = {
     "MinitaurBullet-v0": ("minitaur_env.env:MinitaurBulletEnv", 15.0, {}),

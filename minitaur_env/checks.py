@@ -97,9 +97,28 @@ def checked_action(action: Any, size: int) -> np.ndarray:
     return checked
 
 
-def from_mapping(cls: Any, values: Mapping[str, Any]) -> Any:
-    """``cls(**values)`` for a dataclass, refusing a key that is not one of its fields."""
+def from_mapping(cls: Any, values: Mapping[str, Any], base: Any = None) -> Any:
+    """``cls(**values)`` for a dataclass (or ``values`` set on top of ``base``), refusing
+    a key that is not one of its fields."""
     unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
     if unknown:
         raise ValueError(f"{cls.__name__} has no field {unknown[0]!r}")
-    return cls(**values)
+    return cls(**values) if base is None else dataclasses.replace(base, **values)
+
+
+def preset_or_fields(cls: Any, argument: str, value: Any, base: Any) -> Any:
+    """``value`` as a ``cls`` (a settings dataclass with a ``tan2018`` preset): itself,
+    ``"classic"`` (the defaults), ``"tan2018"``, or a mapping of fields set on top of
+    ``base``; None is ``base``."""
+    if value is None:
+        return base
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, str) and value in ("classic", "tan2018"):
+        return cls() if value == "classic" else cls.tan2018()
+    if isinstance(value, Mapping):
+        return from_mapping(cls, value, base)
+    raise ValueError(
+        f"{argument} must be a {cls.__name__}, a mapping of its fields, 'classic' or "
+        f"'tan2018', got {value!r}"
+    )

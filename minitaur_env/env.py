@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
+import warnings
 from collections.abc import Sequence
 from typing import Any, SupportsFloat
 
@@ -33,7 +35,15 @@ from minitaur_env.sensors import (
     SensorHistory,
     observe,
 )
-from minitaur_env.settings import Camera, Realism, RewardWeights
+from minitaur_env.settings import (
+    Camera,
+    EpisodeRealism,
+    Realism,
+    RewardWeights,
+    Uniform,
+    merge_realism,
+    preset_settings,
+)
 from minitaur_env.sim import DATA_PATH, BulletSim
 
 CONTROL_TIME_STEP = 0.01  # s, one action at 100 Hz
@@ -108,14 +118,20 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     ``reward_forward``, ``reward_energy``, ``reward_drift``, ``reward_shake``,
     ``base_position`` (x, y, z in m), ``x_velocity`` (m/s, over the last step),
     ``motors_enabled`` (False where overheat protection switched a motor off).
-    ``reset`` returns ``base_position`` and, with randomization, ``dynamics``.
+    ``reset`` returns ``base_position``, with randomization ``dynamics`` (the physical
+    parameters drawn) and, when a realism field is a range, ``realism`` (the episode's
+    control step, latencies and IMU errors).
 
     ## Arguments
     - ``render_mode``: None, "rgb_array" (frames from a camera following the
       robot, CPU renderer) or "human" (the PyBullet GUI, camera following).
+    - ``preset`` (None): "tan2018" starts ``dynamics_ranges`` and ``realism`` from Tan et
+      al. 2018's Table I with a 3 ms PD latency (the Randomized ids' setting); what is
+      given for either is set on top of it, field by field.
     - ``randomize_dynamics`` (True): re-draw masses, battery voltage, motor
       damping and foot friction at every reset, within ``dynamics_ranges``.
-    - ``dynamics_ranges``: a :class:`DynamicsRanges` (classic ranges by default).
+    - ``dynamics_ranges``: a :class:`DynamicsRanges`, a mapping of its fields (set on
+      top of the classic ranges or the preset's), "classic" or "tan2018".
       Bools must be bools, and every number is checked against a physical range; an
       error names the argument, the value and the range.
     - ``observation`` ("classic"): "classic" or "imu" (above).
@@ -128,15 +144,12 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``motor_kp``, ``motor_kd`` (None: 1.0/0.02, 8.0/0.3 or 1.0/1.0 by mode).
     - ``motor_overheat_protection`` (True), ``motor_velocity_limit`` (inf rad/s).
     - ``action_repeat`` (1): control steps each action is held for.
-    - ``realism`` (None): a :class:`Realism`, or a mapping of its fields: control step,
-      control and PD latency, IMU noise and bias, pushes (Tan et al. 2018; all off by
-      default). Each field is also a keyword of its own: ``control_time_step``,
-      ``control_latency``, ``pd_latency``, ``imu_noise_stdev``, ``imu_bias``, ``pushes``.
-    - ``dynamics_ranges`` also takes ``"tan2018"`` (:meth:`DynamicsRanges.tan2018`:
-      inertia, motor strength, joint friction, control step, latency and IMU errors too)
-      or a mapping of :class:`DynamicsRanges` fields, so ``--env-kwargs`` can state it.
-      A drawn control step, latency or IMU error replaces the fixed one for the episode
-      and is reported in ``reset``'s ``info["dynamics"]``.
+    - ``realism`` (None): a :class:`Realism`, a mapping of its fields (set on top of the
+      classic values or the preset's), "classic" or "tan2018": control step, control and
+      PD latency, IMU noise and bias (each a value or a range drawn per episode), pushes.
+      Until 0.3 each field is also a keyword of its own (``control_latency=0.02``), with
+      a warning, and ``dynamics_ranges`` takes ``control_step``, ``control_latency``,
+      ``imu_noise_stdev`` and ``imu_bias`` ranges (moved to ``realism``), with a warning.
     - ``self_collision`` (True), ``on_rack`` (False: True holds the base in the air).
     - ``hard_reset`` (True): rebuild the world at every reset (about 40 ms), as
       the classic env does. False builds it once and restores a saved state
@@ -150,9 +163,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``urdf_root``: folder with ``plane.urdf`` and ``quadruped/minitaur.urdf``
       (``pybullet_data`` by default).
 
-    ``MinitaurBulletRandomized-v0`` is this env with ``dynamics_ranges="tan2018"`` and
-    ``pd_latency=0.003``: same reward, threshold and time limit (1000 steps, which last
-    4-20 s as the control step is drawn).
+    ``MinitaurBulletRandomized-v0`` is this env with ``preset="tan2018"``: same reward,
+    threshold and time limit (1000 steps, which last 4-20 s as the control step is drawn).
 
     ## Version history
     - v0: gymnasium port of pybullet_envs' MinitaurBulletEnv-v0 (pybullet 3.2.7):
@@ -166,6 +178,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self,
         render_mode: str | None = None,
         *,
+        preset: str | None = None,
         randomize_dynamics: bool = True,
         dynamics_ranges: DynamicsRanges | dict[str, Any] | str | None = None,
         distance_weight: float = 1.0,
@@ -180,7 +193,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         motor_overheat_protection: bool = True,
         motor_velocity_limit: float = math.inf,
         action_repeat: int = 1,
-        realism: Realism | dict[str, Any] | None = None,
+        realism: Realism | dict[str, Any] | str | None = None,
         control_time_step: float | None = None,
         control_latency: float | None = None,
         pd_latency: float | None = None,
@@ -215,19 +228,25 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
                 "dynamics_ranges has no effect with randomize_dynamics=False (the dynamics "
                 "stay classic); drop one of them"
             )
-        self.dynamics_ranges = DynamicsRanges.coerce(dynamics_ranges)
+        self.preset = preset
+        base_ranges, base_realism = preset_settings(preset)
+        dynamics_ranges, moved = _moved_ranges(dynamics_ranges, realism)
+        if moved:
+            realism = {**moved} if realism is None else {**_as_mapping(realism), **moved}
+        _warn_timing_moved(preset, dynamics_ranges, realism)
+        self.dynamics_ranges = DynamicsRanges.coerce(dynamics_ranges, base_ranges)
         self.reward_weights = RewardWeights(
             distance_weight, energy_weight, drift_weight, shake_weight
         )
-        self.realism = Realism.coerce(
-            realism,
-            control_time_step=control_time_step,
-            control_latency=control_latency,
-            pd_latency=pd_latency,
-            imu_noise_stdev=imu_noise_stdev,
-            imu_bias=imu_bias,
-            pushes=pushes,
-        )
+        flat = {
+            "control_time_step": control_time_step,
+            "control_latency": control_latency,
+            "pd_latency": pd_latency,
+            "imu_noise_stdev": imu_noise_stdev,
+            "imu_bias": imu_bias,
+            "pushes": pushes,
+        }
+        self.realism = merge_realism(realism, flat, base_realism)
         self.camera = Camera(width, height, camera_distance, camera_yaw, camera_pitch)
         self.distance_limit = number("distance_limit", distance_limit, 0, math.inf, low_open=True)
         self.observation_noise_stdev = number(
@@ -242,12 +261,12 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._kd = number("motor_kd", default_kd if motor_kd is None else motor_kd, 0, 1e4)
         self.urdf_root = urdf_root
 
-        substeps = self._check_time_steps()
+        self._check_time_steps()
         # The classic solver budget: 300 iterations per 10 ms, whatever the control step.
         self._solver_iterations = round(
             SOLVER_ITERATIONS * self.physics_time_step / CONTROL_TIME_STEP
         )
-        self._set_control_step(substeps)
+        self._use_episode(_typical(self.realism))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}
 
         self.action_space = spaces.Box(-1.0, 1.0, (NUM_MOTORS,), np.float32)
@@ -255,11 +274,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = spaces.Box(-bound, bound, dtype=np.float32)
 
         # Delays need the readings of past physics steps; without them none are kept.
-        max_delay = max(self.realism.control_latency, self.realism.pd_latency)
-        if self.randomize_dynamics and self.dynamics_ranges.control_latency is not None:
-            max_delay = max(max_delay, self.dynamics_ranges.control_latency[1])
+        max_delay = max(self.realism.highest("control_latency"), self.realism.highest("pd_latency"))
         self._history = SensorHistory(self.physics_time_step, max_delay) if max_delay > 0 else None
-        self._draw_episode_settings(None)
         self._physics_step_count = 0
         self._push_force = np.zeros(3)
         self._push_scale = 1.0
@@ -272,34 +288,40 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._previous_x = 0.0
         self._last_frame_time = 0.0
 
-    def _check_time_steps(self) -> int:
-        """Set the physics step; return the physics steps per control step."""
+    def _check_time_steps(self) -> None:
+        """Set the physics step, and check the control step is a whole number of them."""
         control_time_step = self.realism.control_time_step
         # A motor model needs small physics steps to stay stable; PyBullet's own
         # position servos run one physics step per control step.
         if self.motor_control == "position":
-            self.physics_time_step = control_time_step
-            if self.realism.pd_latency > 0 or self.dynamics_ranges.control_step is not None:
+            if self.realism.highest("pd_latency") > 0 or isinstance(control_time_step, Uniform):
                 raise ValueError(
-                    "pd_latency and a randomized control_step need a motor model "
+                    "pd_latency and a drawn control_time_step need a motor model "
                     "(motor_control 'accurate' or 'pd')"
                 )
+            self.physics_time_step = control_time_step
         else:
             self.physics_time_step = CONTROL_TIME_STEP / SUBSTEPS
+        if isinstance(control_time_step, Uniform):
+            return  # each draw is snapped to whole physics steps
         substeps = round(control_time_step / self.physics_time_step)
         if substeps < 1 or abs(substeps * self.physics_time_step - control_time_step) > 1e-9:
             raise ValueError(
                 f"control_time_step must be a positive multiple of the {self.physics_time_step} s "
                 f"physics step, got {control_time_step}"
             )
-        return substeps
 
-    def _set_control_step(self, substeps: int) -> None:
-        self._physics_steps_per_action = substeps * self.action_repeat
+    def _use_episode(self, episode: EpisodeRealism) -> EpisodeRealism:
+        """Take this episode's control step (snapped to whole physics steps), latencies
+        and IMU errors; return them as used."""
+        substeps = max(1, round(episode.control_time_step / self.physics_time_step))
         control_step = self.physics_time_step * substeps
-        if abs(control_step - self.realism.control_time_step) < 1e-12:
-            control_step = self.realism.control_time_step  # exactly the classic 0.01 by default
+        if abs(control_step - episode.control_time_step) < 1e-12:
+            control_step = episode.control_time_step  # exactly the classic 0.01 by default
+        self._physics_steps_per_action = substeps * self.action_repeat
         self.dt = control_step * self.action_repeat
+        self._episode = dataclasses.replace(episode, control_time_step=control_step)
+        return self._episode
 
     # -- scene -------------------------------------------------------------------
     def _build_scene(self, sim: BulletSim) -> None:
@@ -378,11 +400,9 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         robot.reset_motor_state()
 
         info: dict[str, Any] = {}
-        self._draw_episode_settings(None)
         if self.randomize_dynamics:
             dynamics = sample_dynamics(robot, self.dynamics_ranges, self.np_random)
             apply_dynamics(robot, dynamics)
-            self._draw_episode_settings(dynamics)
             info["dynamics"] = dynamics
             self._settle(robot)
         elif self.hard_reset:
@@ -398,6 +418,11 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             sim.restore_state(state)
             robot.observed_torques = torques.copy()
 
+        # Drawn after the dynamics, as the classic randomizer drew them.
+        episode = self._use_episode(self.realism.draw(self.np_random))
+        if self.realism.drawn:
+            info["realism"] = episode
+
         if sim.gui:
             sim.follow_with_gui_camera([0, 0, 0], *self._camera_view())
         position, _ = robot.base_pose()
@@ -411,25 +436,6 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             self._history.clear()
             self._history.append(robot.sensor_reading())
         return self._observation(self._sensed(robot)), info
-
-    def _draw_episode_settings(self, dynamics: Any) -> None:
-        """This episode's control step, latency and IMU errors: drawn, else the fixed ones."""
-        realism = self.realism
-        substeps = round(realism.control_time_step / self.physics_time_step)
-        latency, noise = realism.control_latency, realism.imu_noise_stdev
-        bias = np.array(realism.imu_bias)
-        if dynamics is not None:
-            if dynamics.control_step is not None:
-                substeps = max(1, round(dynamics.control_step / self.physics_time_step))
-            if dynamics.control_latency is not None:
-                latency = dynamics.control_latency
-            if dynamics.imu_noise_stdev is not None:
-                noise = dynamics.imu_noise_stdev
-            if dynamics.imu_bias is not None:
-                bias = np.array(dynamics.imu_bias)
-        self._set_control_step(substeps)
-        self._episode_control_latency = latency
-        self._episode_imu_noise, self._episode_imu_bias = noise, bias
 
     def _settle(self, robot: Minitaur) -> None:
         sim = self._live_sim()
@@ -448,7 +454,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ResetNeeded("call reset() before step()")
         targets = leg_model_to_motor_angles(checked_action(action, NUM_MOTORS))
         sim, history = self._sim, self._history
-        pd_latency, pushes = self.realism.pd_latency, self.realism.pushes
+        pd_latency, pushes = self._episode.pd_latency, self.realism.pushes
         for _ in range(self._physics_steps_per_action):
             pd_state = None
             if pd_latency > 0 and history is not None:
@@ -489,7 +495,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     def _sensed(self, robot: Minitaur, state: np.ndarray | None = None) -> np.ndarray:
         """The reading the controller gets now: ``control_latency`` old when there is one."""
         if self._history is not None:
-            return self._history.delayed(self._episode_control_latency)
+            return self._history.delayed(self._episode.control_latency)
         if state is not None:
             return state
         return robot.sensor_reading() if self.observation == "imu" else robot.observation()
@@ -526,8 +532,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             self.observation,
             self.np_random,
             self.observation_noise_stdev,
-            self._episode_imu_noise,
-            self._episode_imu_bias,
+            self._episode.imu_noise_stdev,
+            np.array(self._episode.imu_bias),
         )
 
     def _reward(self, position: np.ndarray, state: np.ndarray) -> tuple[float, dict[str, Any]]:
@@ -601,3 +607,81 @@ class MinitaurBulletDuckEnv(MinitaurBulletEnv):
 
     def _is_terminated(self, position: tuple[float, ...], orientation: tuple[float, ...]) -> bool:
         return self.lost_duck() or super()._is_terminated(position, orientation)
+
+
+# dynamics_ranges fields that moved to realism in 0.3, and their realism names.
+MOVED_RANGES = {
+    "control_step": "control_time_step",
+    "control_latency": "control_latency",
+    "imu_noise_stdev": "imu_noise_stdev",
+    "imu_bias": "imu_bias",
+}
+
+
+def _as_mapping(realism: Realism | dict[str, Any] | str) -> dict[str, Any]:
+    if isinstance(realism, Realism):
+        return {field.name: getattr(realism, field.name) for field in dataclasses.fields(realism)}
+    if isinstance(realism, str):
+        return _as_mapping(Realism.coerce(realism))
+    return dict(realism)
+
+
+def _moved_ranges(dynamics_ranges: Any, realism: Any) -> tuple[Any, dict[str, Any]]:
+    """Take the timing and IMU ranges out of a dynamics_ranges mapping (where they were
+    before 0.3), with a warning; refuse one that realism sets too."""
+    if not isinstance(dynamics_ranges, dict):
+        return dynamics_ranges, {}
+    old = {name: value for name, value in dynamics_ranges.items() if name in MOVED_RANGES}
+    if not old:
+        return dynamics_ranges, {}
+    moved = {MOVED_RANGES[name]: value for name, value in old.items()}
+    if realism is not None:
+        own = Realism.coerce(realism)
+        twice = [name for name in moved if getattr(own, name) != getattr(Realism(), name)]
+        if twice:
+            raise ValueError(
+                f"{twice[0]} is given twice, in dynamics_ranges and in realism; give it once "
+                "(in realism)"
+            )
+    warnings.warn(
+        f"dynamics_ranges {', '.join(sorted(old))} will be removed after 0.3; give "
+        f"realism={{{', '.join(f'{name!r}: {value!r}' for name, value in moved.items())}}}",
+        FutureWarning,
+        stacklevel=4,
+    )
+    rest = {name: value for name, value in dynamics_ranges.items() if name not in MOVED_RANGES}
+    return rest, moved
+
+
+def _warn_timing_moved(preset_name: str | None, dynamics_ranges: Any, realism: Any) -> None:
+    """Until 0.3 a named dynamics_ranges also set the control step, latency and IMU
+    ranges; say so where the old meaning and the new one differ."""
+    if not isinstance(dynamics_ranges, str) or realism is not None:
+        return
+    if dynamics_ranges == "tan2018" and preset_name is None:
+        warnings.warn(
+            "dynamics_ranges='tan2018' draws Table I's physical parameters only since 0.3; "
+            "add realism='tan2018' for its control step, latency and IMU ranges",
+            FutureWarning,
+            stacklevel=4,
+        )
+    elif preset_name is not None:
+        warnings.warn(
+            f"dynamics_ranges={dynamics_ranges!r} keeps preset {preset_name!r}'s drawn control "
+            "step, latency and IMU errors since 0.3; add realism='classic' for the classic ones",
+            FutureWarning,
+            stacklevel=4,
+        )
+
+
+def _typical(realism: Realism) -> EpisodeRealism:
+    """The values before the first reset: the fixed ones, and the middle of each range."""
+    middle = {
+        name: (value.low + value.high) / 2 if isinstance(value, Uniform) else value
+        for name in ("control_time_step", "control_latency", "pd_latency", "imu_noise_stdev")
+        for value in [getattr(realism, name)]
+    }
+    bias = realism.imu_bias
+    if isinstance(bias, Uniform):
+        bias = ((bias.low + bias.high) / 2,) * 3
+    return EpisodeRealism(**middle, imu_bias=tuple(bias))

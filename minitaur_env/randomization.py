@@ -8,13 +8,12 @@ from typing import Any
 
 import numpy as np
 
-from minitaur_env.checks import from_mapping, number
+from minitaur_env.checks import from_mapping, number, preset_or_fields
 from minitaur_env.robot import NUM_MOTORS, Minitaur
 
 Range = tuple[float, float]
 
-# What each range accepts: (lowest, highest, unit). Generous, but physical: a control step
-# over 0.1 s is almost surely milliseconds, and a latency over 1 s no robot would walk with.
+# What each range accepts: (lowest, highest, unit). Generous, but physical.
 RANGE_BOUNDS: dict[str, tuple[float, float, str]] = {
     "base_mass_scale": (0.0, 10.0, ""),
     "leg_mass_scale": (0.0, 10.0, ""),
@@ -24,10 +23,6 @@ RANGE_BOUNDS: dict[str, tuple[float, float, str]] = {
     "inertia_scale": (0.0, 10.0, ""),
     "motor_strength": (0.0, 10.0, ""),
     "joint_friction": (0.0, 100.0, "N m"),
-    "control_step": (0.0, 0.1, "s"),
-    "control_latency": (0.0, 1.0, "s"),
-    "imu_noise_stdev": (0.0, 1.0, "rad"),
-    "imu_bias": (-1.0, 1.0, "rad"),
 }
 POSITIVE_RANGES = {"base_mass_scale", "leg_mass_scale", "inertia_scale", "battery_voltage"}
 MAX_PUSH_FORCE = 10_000.0  # N
@@ -40,7 +35,8 @@ class DynamicsRanges:
 
     The defaults are the classic ``MinitaurEnvRandomizer``'s; the fields that default to
     ``None`` are not randomized (the env's fixed value holds), so the classic draws and
-    their order are unchanged. :meth:`tan2018` gives Tan et al. 2018's Table I.
+    their order are unchanged. :meth:`tan2018` gives Tan et al. 2018's Table I (the control
+    step, latency and IMU errors are drawn by :class:`Realism`).
     """
 
     base_mass_scale: Range = (0.8, 1.2)
@@ -59,14 +55,6 @@ class DynamicsRanges:
     """Factor on each motor's output torque, one draw per motor."""
     joint_friction: Range | None = None
     """Coulomb friction torque of each knee joint (N m), one draw per knee."""
-    control_step: Range | None = None
-    """Control step (s); snapped to a whole number of physics steps (2 ms), at least one."""
-    control_latency: Range | None = None
-    """Delay of the observations (s); replaces the env's ``control_latency``."""
-    imu_noise_stdev: Range | None = None
-    """Standard deviation of the IMU noise (rad, rad/s); replaces ``imu_noise_stdev``."""
-    imu_bias: Range | None = None
-    """Bias of each IMU angle (rad), drawn per axis; replaces ``imu_bias``."""
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
@@ -86,13 +74,12 @@ class DynamicsRanges:
             if first > last:
                 raise ValueError(f"{name} must be (low, high) with low <= high, got {value!r}")
             object.__setattr__(self, field.name, (first, last))
-        if self.control_step is not None and self.control_step[1] <= 0:
-            raise ValueError("DynamicsRanges.control_step must allow a step > 0")
 
     @classmethod
     def tan2018(cls) -> DynamicsRanges:
-        """Table I of Tan et al. 2018, "Sim-to-Real: Learning Agile Locomotion For
-        Quadruped Robots" (the classic ``minitaur_env_randomizer_config``)."""
+        """The physical ranges of Table I of Tan et al. 2018, "Sim-to-Real: Learning Agile
+        Locomotion For Quadruped Robots" (the classic ``minitaur_env_randomizer_config``;
+        its timing and IMU ranges are :meth:`Realism.tan2018`)."""
         return cls(
             base_mass_scale=(0.8, 1.2),
             leg_mass_scale=(0.8, 1.2),
@@ -102,28 +89,16 @@ class DynamicsRanges:
             inertia_scale=(0.5, 1.5),
             motor_strength=(0.8, 1.2),
             joint_friction=(0.0, 0.05),
-            control_step=(0.003, 0.02),
-            control_latency=(0.0, 0.04),
-            imu_noise_stdev=(0.0, 0.05),
-            imu_bias=(-0.05, 0.05),
         )
 
     @classmethod
-    def coerce(cls, value: DynamicsRanges | dict[str, Any] | str | None) -> DynamicsRanges:
+    def coerce(
+        cls, value: DynamicsRanges | dict[str, Any] | str | None, base: DynamicsRanges | None = None
+    ) -> DynamicsRanges:
         """From what ``--env-kwargs`` can carry: ``"classic"``, ``"tan2018"`` or a mapping of
-        fields (``{motor_strength: [0.8, 0.8]}``: the others keep their defaults)."""
-        if value is None or value == "classic":
-            return cls()
-        if value == "tan2018":
-            return cls.tan2018()
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, dict):
-            return from_mapping(cls, value)
-        raise ValueError(
-            f"dynamics_ranges must be a DynamicsRanges, a mapping of its fields, 'classic' or "
-            f"'tan2018', got {value!r}"
-        )
+        fields set on top of ``base`` (classic by default: ``{motor_strength: [0.8, 0.8]}``
+        keeps the other ranges); None is ``base``."""
+        return preset_or_fields(cls, "dynamics_ranges", value, cls() if base is None else base)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,10 +118,6 @@ class DynamicsSample:
     leg_inertia_scale: float | None = None
     motor_strength: tuple[float, ...] | None = None
     joint_friction: tuple[float, ...] | None = None
-    control_step: float | None = None
-    control_latency: float | None = None
-    imu_noise_stdev: float | None = None
-    imu_bias: tuple[float, ...] | None = None
 
 
 def sample_dynamics(
@@ -176,17 +147,11 @@ def sample_dynamics(
         extra["joint_friction"] = tuple(
             float(v) for v in rng.uniform(*ranges.joint_friction, size=NUM_MOTORS)
         )
-    for name in ("control_step", "control_latency", "imu_noise_stdev"):
-        bounds = getattr(ranges, name)
-        if bounds is not None:
-            extra[name] = rng.uniform(*bounds)
-    if ranges.imu_bias is not None:
-        extra["imu_bias"] = tuple(float(v) for v in rng.uniform(*ranges.imu_bias, size=3))
     return dataclasses.replace(sample, **extra)
 
 
 def apply_dynamics(robot: Minitaur, sample: DynamicsSample) -> None:
-    """Set the robot's physical parameters (the env applies the timing and sensing ones)."""
+    """Set the robot's physical parameters."""
     robot.set_base_mass(sample.base_mass)
     robot.set_leg_masses(sample.leg_mass, sample.motor_mass)
     robot.set_battery_voltage(sample.battery_voltage)

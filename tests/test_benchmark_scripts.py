@@ -9,6 +9,7 @@ import importlib.util
 import json
 import os
 import re
+import shlex
 import subprocess
 import sys
 
@@ -82,7 +83,7 @@ def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tm
     assert result.returncode == 0, result.stderr
     cell = json.loads(cells.read_text())["sac"]["pushes"]
     assert "| sac | " in result.stdout
-    flags = figure_line(r"^pushes: --env-kwargs (.*)$", result.stdout).split()
+    flags = shlex.split(figure_line(r"^pushes: --env-kwargs (.*)$", result.stdout))
     statistics = tmp_path / "evaluate.json"
     again = run_script(
         "evaluate.py", "--model", str(model), "--episodes", "1", "--seed", "12345",
@@ -232,7 +233,7 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
 def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_path):
     result = run_script(
         "benchmarks/push_bound.py", "-n", "2048", "--eval-freq", "1000", "--eval-episodes", "1",
-        "--env-kwargs", "pushes={direction: 90}", "--forces", "400", cwd=tmp_path,
+        "--env-kwargs", "realism={pushes: {direction: 90}}", "--forces", "400", cwd=tmp_path,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     row = r"falls ([0-9]+)/([0-9]+)  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"

@@ -387,9 +387,9 @@ def test_step_before_reset_raises(env):
         ({"observation_noise_stdev": -0.1}, "observation_noise_stdev"),
         # accepted before without a word: 0 solver iterations, a push at every physics step,
         # ranges that nothing draws from
-        ({"control_time_step": 1e-300}, r"control_time_step must be .*\[0.001, 0.1\]"),
-        ({"pushes": {"interval": 1e-9, "duration": 1e-9}}, r"Pushes.interval must be"),
-        ({"dynamics_ranges": "tan2018", "randomize_dynamics": False}, "has no effect with"),
+        ({"realism": {"control_time_step": 1e-300}}, r"control_time_step must be .*\[0.001, 0.1\]"),
+        ({"realism": {"pushes": {"interval": 1e-9, "duration": 1e-9}}}, r"Pushes.interval must be"),
+        ({"preset": "tan2018", "dynamics_ranges": {}, "randomize_dynamics": False}, "no effect"),
     ],
 )
 def test_invalid_arguments_fail_at_construction(kwargs, message):
@@ -398,9 +398,9 @@ def test_invalid_arguments_fail_at_construction(kwargs, message):
 
 
 def test_the_smallest_accepted_settings_build(env):  # control of the three cases above
-    MinitaurBulletEnv(control_time_step=0.001, motor_control="position").close()
-    MinitaurBulletEnv(pushes={"interval": 0.01, "duration": 0.002}).close()
-    MinitaurBulletEnv(dynamics_ranges="tan2018").close()
+    MinitaurBulletEnv(realism={"control_time_step": 0.001}, motor_control="position").close()
+    MinitaurBulletEnv(realism={"pushes": {"interval": 0.01, "duration": 0.002}}).close()
+    MinitaurBulletEnv(preset="tan2018", dynamics_ranges={}).close()
 
 
 def test_unknown_argument_fails_at_construction():

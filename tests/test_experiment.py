@@ -477,7 +477,7 @@ def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_
     def pushed(name: str, callback: BaseCallback, **settings) -> Experiment:
         return pendulum(
             tmp_path / name, env="MinitaurBulletEnv-v0", n_envs=2, eval_freq=100,
-            eval_episodes=1, env_kwargs={"pushes": True, "max_episode_steps": 30},
+            eval_episodes=1, env_kwargs={"realism": {"pushes": True}, "max_episode_steps": 30},
             hyperparams={"push_curriculum": {"start": 0.2, "full_at": 0.5}},
             callbacks=[callback], **settings,
         )  # fmt: skip
@@ -494,7 +494,7 @@ def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_
 
     control = RecordsPushScale()
     pendulum(
-        tmp_path / "control", env="MinitaurBulletEnv-v0", env_kwargs={"pushes": True,
+        tmp_path / "control", env="MinitaurBulletEnv-v0", env_kwargs={"realism": {"pushes": True},
         "max_episode_steps": 30}, callbacks=[control],
     ).run()  # fmt: skip
     assert set(control.scales.values()) == {1.0}
@@ -513,9 +513,21 @@ def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_
     ("hyperparams", "env_kwargs", "message"),
     [
         ({"start": 0.2, "full_at": 0.5}, {}, "the env has no pushes to scale; add --env-kwargs"),
-        ({"start": 0.2}, {"pushes": True}, "expected {start: <fraction of the force>, full_at"),
-        ({"start": 2, "full_at": 0.5}, {"pushes": True}, "start must be a number in [0, 1], got 2"),
-        ({"start": 0, "full_at": 0}, {"pushes": True}, "full_at must be a number in (0, 1], got 0"),
+        (
+            {"start": 0.2},
+            {"realism": {"pushes": True}},
+            "expected {start: <fraction of the force>, full_at",
+        ),
+        (
+            {"start": 2, "full_at": 0.5},
+            {"realism": {"pushes": True}},
+            "start must be a number in [0, 1], got 2",
+        ),
+        (
+            {"start": 0, "full_at": 0},
+            {"realism": {"pushes": True}},
+            "full_at must be a number in (0, 1], got 0",
+        ),
     ],
 )
 def test_a_push_curriculum_that_would_do_nothing_is_refused(hyperparams, env_kwargs, message):
@@ -523,6 +535,23 @@ def test_a_push_curriculum_that_would_do_nothing_is_refused(hyperparams, env_kwa
         ExperimentConfig.resolve(
             "sac", "MinitaurBulletEnv-v0", hyperparams={"push_curriculum": hyperparams},
             env_kwargs=env_kwargs,
+        )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "env_kwargs",
+    [{"realism": {"pushes": True}}, {"pushes": True}, {"realism": {"pushes": {"force": [9, 9]}}}],
+)
+def test_a_push_curriculum_finds_the_pushes_in_realism_or_the_old_keyword(env_kwargs):
+    curriculum = {"push_curriculum": {"start": 0.0, "full_at": 0.5}}
+    config = ExperimentConfig.resolve(
+        "sac", "MinitaurBulletEnv-v0", hyperparams=curriculum, env_kwargs=env_kwargs
+    )
+    assert config.env_pushes not in (None, False)
+    with pytest.raises(UsageError, match="no pushes to scale"):  # control: pushes off
+        ExperimentConfig.resolve(
+            "sac", "MinitaurBulletEnv-v0", hyperparams=curriculum,
+            env_kwargs={"realism": {"pushes": False}},
         )  # fmt: skip
 
 
@@ -672,8 +701,10 @@ def test_the_robust_recipe_is_an_entry_that_reproduces_the_shipped_robust_ppos_s
         assert (config.n_timesteps, config.n_envs) == (shipped["n_timesteps"], shipped["n_envs"])
     # --env-kwargs still decide over the entry's
     mine = ExperimentConfig.resolve(
-        "ppo", "MinitaurBulletTrotRandomized-v0", env_kwargs={"history": 2, "pushes": True}
+        "ppo",
+        "MinitaurBulletTrotRandomized-v0",
+        env_kwargs={"history": 2, "realism": {"pushes": True}},
     )
-    assert mine.env_kwargs == {"history": 2, "pushes": True}
+    assert mine.env_kwargs == {"history": 2, "realism": {"pushes": True}}
     # and the classic entry has none
     assert ExperimentConfig.resolve("ppo", "MinitaurBulletEnv-v0").env_kwargs == {}

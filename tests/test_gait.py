@@ -82,7 +82,7 @@ def test_the_policy_sets_the_frequency_and_the_phase_follows_the_episodes_contro
     observation, info = env.reset(seed=5)
     dt = env.unwrapped.dt
     # Drawn for the episode, rounded to the 2 ms physics step.
-    assert dt != 0.01 and info["dynamics"].control_step == pytest.approx(dt, abs=0.001)
+    assert dt != 0.01 and info["realism"].control_time_step == dt
     np.testing.assert_allclose(observation[-2:], [0.0, 1.0])  # sin, cos of phase 0
     faster = STILL.copy()
     faster[8] = 1.0  # frequency x (1 + 0.5)

@@ -78,7 +78,7 @@ def test_no_candidate_is_one_line(tmp_path, judged):
         shipping.select([run], episodes=1, log=lambda _: None)
 
 
-CLASSIC = {"dynamics_ranges": "classic", "pd_latency": 0}
+CLASSIC = {"dynamics_ranges": "classic", "realism": "classic"}
 
 
 def test_also_on_sums_falls_over_the_conditions_and_reports_each(tmp_path, judged):
@@ -88,16 +88,16 @@ def test_also_on_sums_falls_over_the_conditions_and_reports_each(tmp_path, judge
         "best_model.zip": (25.0, 3),
         "MinitaurBulletEnv-v0.zip": (25.0, 3),
         "rl_model_300_steps.zip": (20.0, 0),  # the best on its own env...
-        ("rl_model_300_steps.zip", "dynamics_ranges=classic pd_latency=0"): (14.0, 2),
+        ("rl_model_300_steps.zip", "dynamics_ranges=classic realism=classic"): (14.0, 2),
         "rl_model_100_steps.zip": (16.0, 1),  # ...but this one falls less in all
-        ("rl_model_100_steps.zip", "dynamics_ranges=classic pd_latency=0"): (15.0, 0),
+        ("rl_model_100_steps.zip", "dynamics_ranges=classic realism=classic"): (15.0, 0),
     })  # fmt: skip
     report = shipping.select([run], episodes=2, from_steps=0, also_on=[CLASSIC], log=lambda _: None)
     assert Path(report["chosen"]["model"]).name == "rl_model_100_steps.zip"
     assert report["selection"][str(run.checkpoint(100))]["falls"] == 1
     assert report["selection"][str(run.checkpoint(100))]["mean"] == pytest.approx(15.5)
-    assert report["chosen"]["also_on"]["dynamics_ranges=classic pd_latency=0"]["mean"] == 15.0
-    assert report["also_on"] == {"dynamics_ranges=classic pd_latency=0": CLASSIC}
+    assert report["chosen"]["also_on"]["dynamics_ranges=classic realism=classic"]["mean"] == 15.0
+    assert report["also_on"] == {"dynamics_ranges=classic realism=classic": CLASSIC}
     # negative control: judged on its own env alone, the other checkpoint wins
     report = shipping.select([run], episodes=2, from_steps=0, log=lambda _: None)
     assert Path(report["chosen"]["model"]).name == "rl_model_300_steps.zip"
@@ -112,8 +112,10 @@ def test_a_condition_that_changes_nothing_or_repeats_is_refused(tmp_path, judged
 
 
 def test_condition_labels_are_env_kwargs_flags_a_shell_reads_back():
-    label = shipping.condition_label({"pushes": {"direction": 90}, "dynamics_ranges": "classic"})
-    assert shlex.split(label) == ['pushes={"direction":90}', "dynamics_ranges=classic"]
+    label = shipping.condition_label(
+        {"realism": {"pushes": {"direction": 90}}, "dynamics_ranges": "classic"}
+    )
+    assert shlex.split(label) == ['realism={"pushes":{"direction":90}}', "dynamics_ranges=classic"]
 
 
 def test_judge_plays_on_the_policys_own_kwargs_with_the_overrides(monkeypatch):
@@ -121,7 +123,7 @@ def test_judge_plays_on_the_policys_own_kwargs_with_the_overrides(monkeypatch):
     on them, as evaluate.py plays it, not on the bare registered env."""
     policy = SimpleNamespace(
         env_id="MinitaurBulletTrotRandomized-v0",
-        env_kwargs={"history": 4, "pd_latency": 0.003, "max_episode_steps": 50},
+        env_kwargs={"history": 4, "realism": {"pd_latency": 0.003}, "max_episode_steps": 50},
     )
     played = []
     monkeypatch.setattr(shipping, "load_policy", lambda *a, **k: policy)
@@ -131,11 +133,11 @@ def test_judge_plays_on_the_policys_own_kwargs_with_the_overrides(monkeypatch):
         return [{"return": 1.0, "fell": 0.0, "speed": 1.0}]
 
     monkeypatch.setattr(shipping, "play", play)
-    shipping.judge(Path("m.zip"), 1, 0, {"pd_latency": 0})
+    shipping.judge(Path("m.zip"), 1, 0, {"realism": "classic"})
     shipping.judge(Path("m.zip"), 1, 0)
     shipping.judge(Path("m.zip"), 1, 0, env=("MinitaurBulletTrot-v0", {"history": 4}))
     assert played == [
-        ("MinitaurBulletTrotRandomized-v0", {"history": 4, "pd_latency": 0}),
-        ("MinitaurBulletTrotRandomized-v0", {"history": 4, "pd_latency": 0.003}),
+        ("MinitaurBulletTrotRandomized-v0", {"history": 4, "realism": "classic"}),
+        ("MinitaurBulletTrotRandomized-v0", {"history": 4, "realism": {"pd_latency": 0.003}}),
         ("MinitaurBulletTrot-v0", {"history": 4}),
     ]

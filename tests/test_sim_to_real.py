@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -53,7 +54,7 @@ def test_defaults_draw_only_the_classic_parameters():
 @pytest.mark.parametrize("steps", [1, 2, 3])
 def test_control_latency_delays_observations_by_whole_steps(steps):
     plain, _ = observations()
-    late, _ = observations(control_latency=0.01 * steps)
+    late, _ = observations(realism={"control_latency": 0.01 * steps})
     np.testing.assert_array_equal(late[steps:], plain[:-steps])
     assert np.abs(late[steps:] - plain[steps:]).max() > 0.1  # control: not the same series
     np.testing.assert_array_equal(late[:steps], np.repeat(plain[:1], steps, axis=0))
@@ -73,7 +74,7 @@ def test_pd_latency_makes_the_position_loop_overshoot():
     swing = np.array([0, 0, 0, 0, 1, 1, 1, 1], dtype=float)
     settle = {}
     for latency in (0.0, 0.012):
-        angles, _ = observations(40, action=swing, on_rack=True, pd_latency=latency)
+        angles, _ = observations(40, action=swing, on_rack=True, realism={"pd_latency": latency})
         settle[latency] = angles[:, 0]
     # Without latency the motor moves to its target without passing it.
     assert settle[0.0].min() == pytest.approx(settle[0.0][-1], abs=1e-3)
@@ -134,7 +135,9 @@ def test_contact_friction_range_is_applied():
 
 # -- control step ---------------------------------------------------------------------
 def test_control_step_sets_the_time_per_action():
-    slow = MinitaurBulletEnv(control_time_step=0.02, randomize_dynamics=False, pushes=True)
+    slow = MinitaurBulletEnv(
+        realism={"control_time_step": 0.02, "pushes": True}, randomize_dynamics=False
+    )
     assert slow.dt == 0.02 and slow.metadata["render_fps"] == 50
     slow.reset(seed=0)
     pushed = []
@@ -145,16 +148,17 @@ def test_control_step_sets_the_time_per_action():
     slow.close()
     assert pushed[0] == 60  # the first push, at 1.2 s, comes at 60 steps of 20 ms, not 120
     with pytest.raises(ValueError, match="control_time_step must be a positive multiple"):
-        MinitaurBulletEnv(control_time_step=0.003)
+        MinitaurBulletEnv(realism={"control_time_step": 0.003})
 
 
-def test_a_randomized_control_step_snaps_to_physics_steps():
-    env = MinitaurBulletEnv(dynamics_ranges={"control_step": (0.003, 0.02)})
+def test_a_drawn_control_step_snaps_to_physics_steps():
+    env = MinitaurBulletEnv(realism={"control_time_step": (0.003, 0.02)})
     steps = set()
     for seed in range(8):
         _, info = env.reset(seed=seed)
-        assert 0.003 <= info["dynamics"].control_step <= 0.02
-        assert env.dt == pytest.approx(0.002 * max(1, round(info["dynamics"].control_step / 0.002)))
+        drawn = info["realism"].control_time_step
+        assert 0.003 <= drawn <= 0.02 and env.dt == drawn
+        assert drawn / 0.002 == pytest.approx(round(drawn / 0.002), abs=1e-9)
         steps.add(round(env.dt, 3))
     assert len(steps) > 3
     env.close()
@@ -164,7 +168,10 @@ def test_a_randomized_control_step_snaps_to_physics_steps():
 def test_pushes_move_the_base_and_follow_the_seed():
     standing = np.zeros(8)
     runs = {}
-    for name, kwargs in (("still", {}), ("pushed", {"pushes": {"force": (200.0, 200.0)}})):
+    for name, kwargs in (
+        ("still", {}),
+        ("pushed", {"realism": {"pushes": {"force": (200.0, 200.0)}}}),
+    ):
         _, infos = observations(135, action=standing, **kwargs)
         runs[name] = infos
     forces = [i for i, info in enumerate(runs["pushed"][1:]) if info["push_force"].any()]
@@ -176,7 +183,8 @@ def test_pushes_move_the_base_and_follow_the_seed():
     }
     assert moved["pushed"] > 0.05 > moved["still"] * 5
     first, again, other = (
-        observations(135, action=standing, seed=seed, pushes=True)[0] for seed in (0, 0, 1)
+        observations(135, action=standing, seed=seed, realism={"pushes": True})[0]
+        for seed in (0, 0, 1)
     )
     np.testing.assert_array_equal(again, first)  # same seed, same pushes
     assert not np.array_equal(other, first)
@@ -187,7 +195,7 @@ def test_a_push_direction_fixes_where_the_base_goes_and_keeps_the_magnitudes():
     moved, magnitudes = {}, {}
     for direction in (None, 0.0, 90.0):
         pushes = {"force": (100.0, 150.0), "direction": direction}
-        _, infos = observations(135, action=standing, pushes=pushes)
+        _, infos = observations(135, action=standing, realism={"pushes": pushes})
         force = infos[121]["push_force"]
         magnitudes[direction] = np.linalg.norm(force)
         moved[direction] = infos[-1]["base_position"][:2] - infos[118]["base_position"][:2]
@@ -207,7 +215,7 @@ def test_a_push_direction_fixes_where_the_base_goes_and_keeps_the_magnitudes():
 
 def test_a_push_scale_scales_the_same_draws_and_a_bad_one_is_refused():
     def pushed(scale: float | None) -> tuple[np.ndarray, float]:
-        env = MinitaurBulletEnv(randomize_dynamics=False, pushes=True)
+        env = MinitaurBulletEnv(randomize_dynamics=False, realism={"pushes": True})
         if scale is not None:
             env.set_push_scale(scale)
         env.reset(seed=3)
@@ -221,7 +229,7 @@ def test_a_push_scale_scales_the_same_draws_and_a_bad_one_is_refused():
     np.testing.assert_allclose(half, 0.5 * full, rtol=1e-12)  # the same direction and draw
     assert not none.any()
     assert moved_full > moved_half > moved_none  # and the base feels the difference
-    env = MinitaurBulletEnv(pushes=True)
+    env = MinitaurBulletEnv(realism={"pushes": True})
     assert env.push_scale == 1.0
     with pytest.raises(ValueError, match=r"push scale must be in \[0, 1\], got 1\.5"):
         env.set_push_scale(1.5)
@@ -258,13 +266,19 @@ def test_imu_observation_holds_motor_angles_roll_pitch_and_rates():
 def test_imu_bias_shifts_and_imu_noise_spreads_roll_and_pitch():
     still = np.zeros(8)
     true, _ = observations(50, action=still, on_rack=True, observation="imu")
-    biased, _ = observations(50, action=still, on_rack=True, observation="imu", imu_bias=0.05)
+    biased, _ = observations(
+        50, action=still, on_rack=True, observation="imu", realism={"imu_bias": 0.05}
+    )
     np.testing.assert_allclose(biased[:, 8:10], true[:, 8:10] + 0.05, atol=1e-6)
     np.testing.assert_array_equal(biased[:, :8], true[:, :8])
-    noisy, _ = observations(50, action=still, on_rack=True, observation="imu", imu_noise_stdev=0.05)
+    noisy, _ = observations(
+        50, action=still, on_rack=True, observation="imu", realism={"imu_noise_stdev": 0.05}
+    )
     error = noisy[:, 8:10] - true[:, 8:10]
     assert 0.035 < error.std() < 0.065 and abs(error.mean()) < 0.02
-    classic_biased, _ = observations(5, action=still, on_rack=True, imu_bias=[0.05, 0.0, 0.0])
+    classic_biased, _ = observations(
+        5, action=still, on_rack=True, realism={"imu_bias": [0.05, 0.0, 0.0]}
+    )
     classic, _ = observations(5, action=still, on_rack=True)
     rolls = [quaternion_to_euler(q)[0] for q in (classic_biased[-1, 24:], classic[-1, 24:])]
     assert rolls[0] - rolls[1] == pytest.approx(0.05, abs=1e-5)
@@ -273,7 +287,7 @@ def test_imu_bias_shifts_and_imu_noise_spreads_roll_and_pitch():
 # -- the preset -------------------------------------------------------------------------
 def test_the_randomized_id_uses_tan2018_and_is_reproducible():
     spec = gym.spec("MinitaurBulletRandomized-v0")
-    assert spec.reward_threshold == 15.0 and spec.kwargs["pd_latency"] == 0.003
+    assert spec.reward_threshold == 15.0 and spec.kwargs == {"preset": "tan2018"}
     runs = []
     for seed in (3, 3, 4):
         env = gym.make("MinitaurBulletRandomized-v0")
@@ -282,11 +296,11 @@ def test_the_randomized_id_uses_tan2018_and_is_reproducible():
         series = [obs]
         for _ in range(20):
             series.append(env.step(env.action_space.sample())[0])
-        runs.append((np.array(series), info["dynamics"]))
+        runs.append((np.array(series), (info["dynamics"], info["realism"])))
         env.close()
-    ranges = DynamicsRanges.tan2018()
-    dynamics = runs[0][1]
-    assert ranges.control_latency[0] <= dynamics.control_latency <= ranges.control_latency[1]
+    dynamics, realism = runs[0][1]
+    assert 0 <= realism.control_latency <= 0.04 and realism.pd_latency == 0.003
+    assert 0.003 <= realism.control_time_step <= 0.02
     assert all(0.8 <= s <= 1.2 for s in dynamics.motor_strength)
     np.testing.assert_array_equal(runs[0][0], runs[1][0])
     assert runs[0][1] == runs[1][1] and runs[0][1] != runs[2][1]
@@ -297,29 +311,53 @@ def test_the_randomized_id_uses_tan2018_and_is_reproducible():
     ("kwargs", "message"),
     [
         ({"observation": "lidar"}, "observation must be one of"),
-        ({"control_latency": -0.01}, "control_latency must be in [0, 1] s, got -0.01"),
-        ({"imu_bias": float("nan")}, "imu_bias must be in [-1, 1] rad, got nan"),
+        ({"realism": {"control_latency": -0.01}}, "control_latency must be in [0, 1] s, got -0.01"),
+        ({"realism": {"imu_bias": float("nan")}}, "imu_bias must be in [-1, 1] rad, got nan"),
+        ({"realism": {"imu_bias": [0.1, 0.2, 0.3, 0.4]}}, "imu_bias must be a number, three or"),
+        ({"realism": {"control_latency": [0.04, 0.0]}}, "control_latency must be (low, high) with"),
+        ({"realism": {"pd_latency": [0.0, 0.01, 0.02]}}, "pd_latency must be a number or (low,"),
+        (
+            {"realism": {"control_time_step": [0.0, 0.02]}},
+            "control_time_step low must be in [0.001",
+        ),
+        ({"realism": "tan2019"}, "realism must be a Realism, a mapping of its fields, 'classic'"),
+        ({"preset": "tan2019"}, "preset must be one of (None, 'tan2018'), got 'tan2019'"),
         # What the issue found accepted silently: each now names the value and the range.
         ({"randomize_dynamics": "no"}, "randomize_dynamics must be True or False, got 'no'"),
         ({"hard_reset": 0}, "hard_reset must be True or False, got 0"),
-        ({"control_latency": 1e9}, "control_latency must be in [0, 1] s, got 1000000000.0"),
-        ({"pushes": {"force": [1e12, 1e12]}}, "Pushes.force low must be in [0, 10000] N"),
+        (
+            {"realism": {"control_latency": 1e9}},
+            "control_latency must be in [0, 1] s, got 1000000000.0",
+        ),
+        (
+            {"realism": {"pushes": {"force": [1e12, 1e12]}}},
+            "Pushes.force low must be in [0, 10000] N",
+        ),
         (
             {"dynamics_ranges": {"base_mass_scale": [0, 0]}},
             "base_mass_scale low must be in (0, 10]",
         ),
-        ({"dynamics_ranges": {"control_step": [3, 20]}}, "control_step low must be in [0, 0.1] s"),
-        ({"control_time_step": 10}, "control_time_step must be in [0.001, 0.1] s, got 10"),
-        ({"control_time_step": "fast"}, "control_time_step must be a number in [0.001, 0.1] s"),
         (
-            {"control_time_step": float("nan")},
+            {"dynamics_ranges": {"control_step": [3, 20]}},
+            "control_time_step low must be in [0.001, 0.1] s",
+        ),
+        (
+            {"realism": {"control_time_step": 10}},
+            "control_time_step must be in [0.001, 0.1] s, got 10",
+        ),
+        (
+            {"realism": {"control_time_step": "fast"}},
+            "control_time_step must be a number in [0.001, 0.1] s",
+        ),
+        (
+            {"realism": {"control_time_step": float("nan")}},
             "control_time_step must be in [0.001, 0.1] s, got nan",
         ),
         ({"energy_weight": "0.1"}, "energy_weight must be a number in [0, inf)"),
         ({"distance_limit": float("nan")}, "distance_limit must be in (0, inf]"),
         ({"width": True}, "width must be an int in [1, 4096], got True"),
         ({"realism": {"latency": 0.02}}, "Realism has no field 'latency'"),
-        ({"realism": 0.02}, "realism must be a Realism or a mapping of its fields"),
+        ({"realism": 0.02}, "realism must be a Realism, a mapping of its fields"),
         (
             {"realism": {"control_latency": 0.02}, "control_latency": 0.01},
             "control_latency is given twice",
@@ -327,8 +365,16 @@ def test_the_randomized_id_uses_tan2018_and_is_reproducible():
         ({"dynamics_ranges": {"stiffness": (0, 1)}}, "DynamicsRanges has no field 'stiffness'"),
         ({"dynamics_ranges": "tan2019"}, "dynamics_ranges must be a DynamicsRanges"),
         ({"dynamics_ranges": {"motor_strength": 0.8}}, "motor_strength must be (low, high)"),
-        ({"pushes": {"interval": 0.05}}, "Pushes needs 0 < duration <= interval"),
-        ({"motor_control": "position", "pd_latency": 0.003}, "need a motor model"),
+        ({"realism": {"pushes": {"interval": 0.05}}}, "Pushes needs 0 < duration <= interval"),
+        ({"motor_control": "position", "realism": {"pd_latency": 0.003}}, "need a motor model"),
+        ({"motor_control": "position", "realism": {"control_time_step": (0.01, 0.02)}}, "need a"),
+        (
+            {
+                "dynamics_ranges": {"control_latency": [0, 0.04]},
+                "realism": {"control_latency": 0.02},
+            },
+            "control_latency is given twice, in dynamics_ranges and in realism",
+        ),
     ],
 )
 def test_bad_knobs_are_one_clear_error(kwargs, message):
@@ -341,11 +387,20 @@ def test_pushes_default_to_tan2018():
     assert Pushes.coerce(True) == Pushes(force=(130.0, 220.0), interval=1.2, duration=0.06)
 
 
-def test_realism_and_its_flat_keywords_are_the_same_env():
+def test_the_deprecated_flat_keywords_warn_in_one_line_and_make_the_same_env():
     flat = {"control_latency": 0.02, "pd_latency": 0.004, "imu_bias": 0.01, "pushes": True}
-    grouped, _ = observations(steps=40, realism=flat)
-    aliased, _ = observations(steps=40, **flat)
-    both, _ = observations(steps=40, realism=Realism(**flat), control_latency=0.02)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the realism mapping warns about nothing
+        grouped, _ = observations(steps=40, realism=flat)
+    with pytest.warns(FutureWarning) as caught:
+        aliased, _ = observations(steps=40, **flat)
+    (warning,) = caught
+    assert "will be removed after 0.3; give realism={'control_latency': 0.02" in str(
+        warning.message
+    )
+    assert "\n" not in str(warning.message)
+    with pytest.warns(FutureWarning):
+        both, _ = observations(steps=40, realism=Realism(**flat), control_latency=0.02)
     nominal, _ = observations(steps=40)
     np.testing.assert_array_equal(grouped, aliased)
     np.testing.assert_array_equal(grouped, both)  # the same value given twice is no conflict
@@ -354,6 +409,78 @@ def test_realism_and_its_flat_keywords_are_the_same_env():
     assert env.realism == Realism(**flat) and env.realism.imu_bias == (0.01, 0.01, 0.01)
     assert env.realism.pushes == Pushes()
     env.close()
+
+
+def test_ranges_moved_out_of_dynamics_ranges_warn_and_draw_the_same_episodes():
+    ranges = {
+        "control_step": [0.003, 0.02],
+        "control_latency": [0.0, 0.04],
+        "imu_bias": [-0.05, 0.05],
+    }
+    with pytest.warns(FutureWarning, match="dynamics_ranges control_latency, control_step, imu_b"):
+        old = MinitaurBulletEnv(dynamics_ranges={**ranges, "motor_strength": [0.8, 1.2]})
+    new = MinitaurBulletEnv(
+        dynamics_ranges={"motor_strength": [0.8, 1.2]},
+        realism={"control_time_step": [0.003, 0.02], "control_latency": [0.0, 0.04],
+                 "imu_bias": [-0.05, 0.05]},
+    )  # fmt: skip
+    assert old.realism == new.realism and old.dynamics_ranges == new.dynamics_ranges
+    for env in (old, new):
+        env.action_space.seed(0)
+    runs = [[env.reset(seed=5)[1]["realism"]] + [env.step(np.zeros(8))[0] for _ in range(5)]
+            for env in (old, new)]  # fmt: skip
+    assert runs[0][0] == runs[1][0]
+    np.testing.assert_array_equal(np.array(runs[0][1:]), np.array(runs[1][1:]))
+    old.close()
+    new.close()
+
+
+def test_a_realism_range_is_drawn_per_episode_and_a_value_is_not():
+    env = MinitaurBulletEnv(randomize_dynamics=False, realism={"control_latency": (0.0, 0.04)})
+    drawn = [env.reset(seed=seed)[1]["realism"].control_latency for seed in (0, 0, 1, 2)]
+    assert drawn[0] == drawn[1] and len(set(drawn)) == 3
+    assert all(0.0 <= latency <= 0.04 for latency in drawn)
+    env.close()
+    fixed = MinitaurBulletEnv(randomize_dynamics=False, realism={"control_latency": 0.02})
+    assert "realism" not in fixed.reset(seed=0)[1]  # control: nothing drawn, nothing reported
+    fixed.close()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "warned"),
+    [
+        ({"dynamics_ranges": "tan2018"}, "draws Table I's physical parameters only since 0.3"),
+        ({"preset": "tan2018", "dynamics_ranges": "classic"}, "add realism='classic'"),
+        ({"dynamics_ranges": "tan2018", "realism": "tan2018"}, None),
+        ({"preset": "tan2018", "dynamics_ranges": "classic", "realism": "classic"}, None),
+    ],
+)
+def test_a_named_dynamics_ranges_says_where_its_old_meaning_changed(kwargs, warned):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        MinitaurBulletEnv(**kwargs).close()
+    messages = [str(warning.message) for warning in caught if warning.category is FutureWarning]
+    assert len(messages) == (0 if warned is None else 1)
+    assert warned is None or warned in messages[0]
+
+
+def test_the_preset_is_a_base_that_what_is_given_sets_fields_of():
+    plain = MinitaurBulletEnv(preset="tan2018")
+    assert plain.realism == dataclasses.replace(Realism.tan2018(), pd_latency=0.003)
+    assert plain.dynamics_ranges == DynamicsRanges.tan2018()
+    mixed = MinitaurBulletEnv(
+        preset="tan2018",
+        dynamics_ranges={"motor_strength": [0.8, 0.8]},
+        realism={"control_latency": 0.02},
+    )
+    assert mixed.dynamics_ranges.motor_strength == (0.8, 0.8)
+    assert mixed.dynamics_ranges.inertia_scale == DynamicsRanges.tan2018().inertia_scale
+    assert mixed.realism.control_latency == 0.02
+    assert mixed.realism.control_time_step == Realism.tan2018().control_time_step
+    classic = MinitaurBulletEnv(preset="tan2018", dynamics_ranges="classic", realism="classic")
+    assert classic.dynamics_ranges == DynamicsRanges() and classic.realism == Realism()
+    for env in (plain, mixed, classic):
+        env.close()
 
 
 def test_the_randomized_id_keeps_its_latency_under_a_realism_mapping():

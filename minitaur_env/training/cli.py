@@ -46,7 +46,7 @@ def add_env_kwargs(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         metavar="KEY=VALUE",
         help="keyword arguments for the env, as YAML values: max_episode_steps=500 "
-        "'dynamics_ranges=tan2018'",
+        "preset=tan2018 'realism={control_latency: 0.02}'",
     )
 
 

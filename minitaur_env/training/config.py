@@ -93,8 +93,13 @@ class ExperimentConfig:
 
     @property
     def env_pushes(self) -> Any:
-        """The env's ``pushes`` setting: the registered id's, unless ``env_kwargs`` sets it."""
-        return {**gym.spec(self.env).kwargs, **self.env_kwargs}.get("pushes")
+        """The env's ``pushes`` setting (in ``realism`` or, deprecated, a keyword of its
+        own): the registered id's, unless ``env_kwargs`` sets it."""
+        kwargs = {**gym.spec(self.env).kwargs, **self.env_kwargs}
+        realism = kwargs.get("realism")
+        within = realism.get("pushes") if isinstance(realism, dict) else None
+        within = getattr(realism, "pushes", None) if within is None else within
+        return kwargs.get("pushes") if within is None else within
 
     def validate(self) -> None:
         """Raise a UsageError for what would only fail later, inside training."""

@@ -161,5 +161,7 @@ def push_curriculum(hyperparams: dict[str, Any], env_pushes: Any) -> tuple[float
             interval = "(0, 1]" if low_open else "[0, 1]"
             raise UsageError(f"{prefix}.{name} must be a number in {interval}, got {value!r}")
     if env_pushes is None or env_pushes is False:
-        raise UsageError(f"{prefix}: the env has no pushes to scale; add --env-kwargs pushes=true")
+        raise UsageError(
+            f"{prefix}: the env has no pushes to scale; add --env-kwargs 'realism={{pushes: true}}'"
+        )
     return float(start), float(full_at)

@@ -66,7 +66,7 @@ def judge(
 
 def condition_label(overrides: dict[str, Any]) -> str:
     """``--env-kwargs`` flags, quoted for a shell, that give these overrides, e.g.
-    ``dynamics_ranges=classic pd_latency=0``."""
+    ``dynamics_ranges=classic realism=classic``."""
     return " ".join(
         shlex.quote(f"{k}={v if isinstance(v, str) else json.dumps(v, separators=(',', ':'))}")
         for k, v in overrides.items()
