@@ -33,6 +33,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import yaml
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci, plot_iqm_curves
@@ -45,24 +46,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 # A row glob ending in this judges an actor_ema run's live actor: the model the same run
 # ends with without the average, since the average does not change training.
 LIVE = "#live-actor"
-TABLES = {
-    "benchmark": {
-        "SAC, default entry": "sac-default/seed*",
-        "TQC (SBX), default entry": "tqc-sweep/seed*",
-        "CrossQ, default entry": "crossq/seed*",
-        "PPO, default entry": "ppo-default/seed*",
-    },
-    "ablation": {
-        "SAC, previous default (constant 3e-4)": "sac-previous-default/seed*",
-        "learning_rate lin_7.3e-4": "sac-ablation/lin7e-4/seed*",
-        "lin_7.3e-4 + LayerNorm critics": "sac-ablation/lin7e-4-ln/seed*",
-        "gSDE (log_std_init -3), actor EMA 0.999": "sac-ablation/gsde-ema/seed*",
-        "gSDE (log_std_init -3), live actor": "sac-ablation/gsde-ema/seed*" + LIVE,
-        "target_entropy 0 (SB3: -8)": "sac-ablation/target-entropy-0/seed*",
-        "target_entropy 0 + lin_7.3e-4 (the default entry)": "sac-default/seed*",
-        "target_entropy 0 + lin_7.3e-4 over 150k + gSDE": "sac-ablation/ent0-lin150k-gsde/seed*",
-    },
-}
+TABLES_FILE = Path(__file__).resolve().parent / "tables.yml"
+TABLES: dict[str, dict] = yaml.safe_load(TABLES_FILE.read_text())
 FALL_WINDOW = (50_000, 150_000)
 NONE = "-"
 
@@ -74,8 +59,10 @@ def final_report(
     rejudge: bool,
     live_actor: bool = False,
     trust: bool = False,
+    stored_only: bool = False,
 ) -> dict | None:
-    """The final model's result on the report episodes, or None if none was kept."""
+    """The final model's result on the report episodes, or None if none was kept;
+    ``stored_only`` refuses to play episodes for a result not stored yet."""
     model = run.final_model
     cache = run.final_model_report(live_actor)
     if not model.is_file():  # a run whose model was not kept may have a recorded result
@@ -86,6 +73,8 @@ def final_report(
         stored = json.loads(cache.read_text())
         if all(stored.get(k) == v for k, v in key.items()):
             return stored
+    if stored_only:
+        raise UsageError(f"{model} has no stored report; run minitaur_table.py to judge it")
     result = {**key, **judge(model, episodes, seed, live_actor=live_actor, trust_pickle=trust)}
     with atomic_path(cache) as temp:  # a stopped judge leaves no half-written result
         temp.write_text(json.dumps(result, indent=1) + "\n")
@@ -122,7 +111,13 @@ def row(
     curves = [RunCurve.read(run) for run in runs]
     reports = [
         final_report(
-            run, args.episodes, args.report_seed, args.rejudge, live_actor, args.trust_pickle
+            run,
+            args.episodes,
+            args.report_seed,
+            args.rejudge,
+            live_actor,
+            args.trust_pickle,
+            stored_only=getattr(args, "stored_only", False),
         )
         for run in runs
     ]
@@ -174,6 +169,54 @@ HEADER = (
 )
 
 
+def render(specs: list[tuple[str, str]], args: argparse.Namespace) -> tuple[str, list, list]:
+    """The table of these (label, glob) rows: its markdown, the rows' curves, and the
+    labels that have no run folders yet (left out of the table)."""
+    lines, groups, missing = [HEADER], [], []
+    for label, spec in specs:
+        pattern, live_actor = spec.removesuffix(LIVE), spec.endswith(LIVE)
+        runs = [RunFolder(Path(p)) for p in sorted(glob(pattern)) if RunFolder.is_run(p)]
+        if not runs:
+            missing.append(f"{label} ({pattern})")
+            continue
+        for run in runs:
+            if not run.evaluations.is_file():
+                raise UsageError(f"{run} has no evaluations.npz; not a finished run")
+        line, group = row(label, runs, args, live_actor)
+        lines.append(line)
+        groups.append(group)
+    return "\n".join(lines), groups, missing
+
+
+def table_specs(name: str) -> list[tuple[str, str]]:
+    return [(label, str(RESULTS / pattern)) for label, pattern in TABLES[name]["rows"].items()]
+
+
+def marked(name: str) -> tuple[str, str]:
+    return f"<!-- table: {name} -->", "<!-- /table -->"
+
+
+def docs_tables(args: argparse.Namespace, root: Path, write: bool) -> list[str]:
+    """Each table of tables.yml against its page under ``root``: rewritten there when
+    ``write``, else the tables whose page differs."""
+    differing = []
+    for name, table in TABLES.items():
+        page = root / table["page"]
+        text = page.read_text()
+        begin, end = marked(name)
+        if text.count(begin) != 1 or text.count(end) < 1:
+            raise UsageError(f"{table['page']} has no {begin} ... {end} for table {name!r}")
+        head, rest = text.split(begin)
+        old, tail = rest.split(end, 1)
+        new = "\n" + render(table_specs(name), args)[0] + "\n"
+        if new != old:
+            differing.append(f"{name} ({table['page']})")
+            if write:
+                with atomic_path(page) as temp:
+                    temp.write_text(head + begin + new + end + tail)
+    return differing
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--table", choices=list(TABLES), default="benchmark")
@@ -193,30 +236,35 @@ def main(argv: list[str] | None = None) -> None:
         help="load pickles (statistics without their JSON): run folders you trust only",
     )
     parser.add_argument("--plot", type=Path, help="write the IQM curves (figure 1) to this PNG")
+    docs = parser.add_mutually_exclusive_group()
+    docs.add_argument(
+        "--write-docs", action="store_true", help="print every table of tables.yml into its page"
+    )
+    docs.add_argument(
+        "--check-docs",
+        action="store_true",
+        help="exit 1 if a page's table differs from its runs' (plays no episodes)",
+    )
     args = parser.parse_args(argv)
+    if args.write_docs or args.check_docs:
+        args.stored_only = args.check_docs
+        differing = docs_tables(args, TABLES_FILE.parents[1], write=args.write_docs)
+        if args.check_docs and differing:
+            sys.exit(
+                f"minitaur_table.py: error: tables that differ from their runs: "
+                f"{', '.join(differing)}; run minitaur_table.py --write-docs"
+            )
+        done = "rewrote " + ", ".join(differing) if differing else "every table matches its runs"
+        print(done)
+        return
     specs: list[tuple[str, str]] = []
     for text in args.row or []:
         label, sep, pattern = text.partition("=")
         if not sep or not label or not pattern:
             parser.error(f"--row expects LABEL=GLOB, got {text!r}")
         specs.append((label, pattern))
-    if not specs:
-        specs = [(label, str(RESULTS / p)) for label, p in TABLES[args.table].items()]
-
-    lines, groups, missing = [HEADER], [], []
-    for label, spec in specs:
-        pattern, live_actor = spec.removesuffix(LIVE), spec.endswith(LIVE)
-        runs = [RunFolder(Path(p)) for p in sorted(glob(pattern)) if RunFolder.is_run(p)]
-        if not runs:
-            missing.append(f"{label} ({pattern})")
-            continue
-        for run in runs:
-            if not run.evaluations.is_file():
-                sys.exit(f"minitaur_table.py: {run} has no evaluations.npz; not a finished run")
-        line, group = row(label, runs, args, live_actor)
-        lines.append(line)
-        groups.append(group)
-    print("\n".join(lines))
+    table, groups, missing = render(specs or table_specs(args.table), args)
+    print(table)
     if missing:
         print(f"\nno run folders yet for: {'; '.join(missing)}", file=sys.stderr)
     print(

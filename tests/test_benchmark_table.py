@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import json
+import re
 
 import numpy as np
 import pytest
 import yaml
 
-from minitaur_env.training import shipping
+from minitaur_env.training import UsageError, shipping
 from minitaur_env.training.aggregate import RunCurve, iqm_with_ci
 from minitaur_env.training.run_folder import RunFolder
 from tests.scripts import REPO, TINY, error_lines, run_script
@@ -171,8 +173,32 @@ def test_a_run_without_evaluations_is_one_line(finished_run, tmp_path):
     )
     assert refused.returncode == 1
     assert error_lines(refused) == [
-        f"minitaur_table.py: {tmp_path}/r/seed0 has no evaluations.npz; not a finished run"
+        f"minitaur_table.py: error: {tmp_path}/r/seed0 has no evaluations.npz; not a finished run"
     ]
+
+
+def test_the_docs_tables_are_their_kept_runs_tables(table):
+    assert table("--check-docs").strip() == "every table matches its runs"
+
+
+def test_a_page_that_disagrees_with_its_runs_is_found_and_rewritten(table, tmp_path):
+    module = importlib.import_module("minitaur_table")
+    args = argparse.Namespace(
+        episodes=20, report_seed=12345, rejudge=False, trust_pickle=False, stored_only=True
+    )
+    page = REPO / "docs" / "results.md"
+    (tmp_path / "docs").mkdir()
+    copy = tmp_path / "docs" / "results.md"
+    copy.write_text(page.read_text())
+    assert module.docs_tables(args, tmp_path, write=False) == []  # control: a true copy
+    row = next(line for line in page.read_text().splitlines() if line.startswith("| PPO, def"))
+    copy.write_text(page.read_text().replace(row, row.replace("| 3 |", "| 4 |", 1)))
+    assert module.docs_tables(args, tmp_path, write=False) == ["benchmark (docs/results.md)"]
+    assert module.docs_tables(args, tmp_path, write=True) == ["benchmark (docs/results.md)"]
+    assert copy.read_text() == page.read_text()  # rewritten from the runs
+    copy.write_text(page.read_text().replace("<!-- table: ablation -->", ""))
+    with pytest.raises(UsageError, match=re.escape("no <!-- table: ablation --> ... <!-- /")):
+        module.docs_tables(args, tmp_path, write=False)
 
 
 def test_a_row_needs_label_and_folders(tmp_path):
