@@ -10,6 +10,7 @@ from stable_baselines3 import SAC
 
 from minitaur_env.training import Experiment, ExperimentConfig, UsageError
 from minitaur_env.training.algorithms import infer_algo, load_model
+from minitaur_env.training.onnx_export import export_onnx
 from minitaur_env.training.policies import POLICY_NAME, StabilizedSACPolicy
 from tests.scripts import needs
 
@@ -125,6 +126,34 @@ def test_the_average_leaves_training_unchanged(use_sde):
     assert not torch.equal(first, next(plain.policy.actor.parameters()))
 
 
+def test_held_noise_repeats_the_exploring_draw_for_its_steps_and_no_longer(tmp_path):
+    def policy(hold: int) -> SAC:
+        return SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=0, device="cpu",
+                   policy_kwargs={"net_arch": [32, 32], "noise_hold": hold}, **SMALL)  # fmt: skip
+
+    obs = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.5]], dtype=np.float32)  # two envs
+    held = policy(4)
+    actions = [held.predict(obs, deterministic=False)[0] for _ in range(9)]
+    for first, later in ((0, [1, 2, 3]), (4, [5, 6, 7])):
+        for step in later:
+            np.testing.assert_array_equal(actions[step], actions[first])
+    assert not np.allclose(actions[4], actions[0]) and not np.allclose(actions[8], actions[4])
+    assert not np.allclose(actions[0][0], actions[0][1])  # each env its own draw
+    white = policy(1)  # the control: SAC's white noise draws at every step
+    drawn = [white.predict(obs, deterministic=False)[0] for _ in range(3)]
+    assert not np.allclose(drawn[0], drawn[1]) and not np.allclose(drawn[1], drawn[2])
+    deterministic = held.predict(obs, deterministic=True)[0]  # no noise, held or not
+    np.testing.assert_array_equal(deterministic, white.predict(obs, deterministic=True)[0])
+    held.save(tmp_path / "held.zip")
+    assert load_model(SAC, tmp_path / "held.zip", device="cpu").policy.noise_hold == 4
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="noise_hold must be a whole number of steps >= 1"):
+            policy(bad)
+    with pytest.raises(ValueError, match="does not combine with use_sde"):
+        SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), use_sde=True, device="cpu",
+            policy_kwargs={"noise_hold": 8}, **SMALL)  # fmt: skip
+
+
 def test_the_policy_name_works_in_a_run_and_bad_values_are_one_line(tmp_path):
     def config(**policy_kwargs):
         return ExperimentConfig.resolve(
@@ -139,6 +168,24 @@ def test_the_policy_name_works_in_a_run_and_bad_values_are_one_line(tmp_path):
     assert isinstance(load_model(SAC, result.run.final_model).policy, StabilizedSACPolicy)
     with pytest.raises(UsageError, match=r"actor_ema is a decay in \(0, 1\), got 1.5"):
         Experiment.create(config(actor_ema=1.5), tmp_path, verbose=0).run()
+
+
+def test_a_held_noise_run_saves_resumes_and_exports(tmp_path):
+    needs("onnxruntime")
+    config = ExperimentConfig.resolve(
+        "sac", "Pendulum-v1", n_timesteps=60, eval_freq=0, save_freq=30, vec_env="dummy",
+        device="cpu",
+        hyperparams={**SMALL, "policy": POLICY_NAME,
+                     "policy_kwargs": {"net_arch": [8], "noise_hold": 8}},
+    )  # fmt: skip
+    run = Experiment.create(config, tmp_path, verbose=0).run().run
+    resumed = Experiment.resume(run.path, n_timesteps=90, verbose=0)
+    result = resumed.run()
+    assert result.status == "completed" and resumed.resumed_at == 60
+    model = load_model(SAC, run.final_model, device="cpu")
+    assert isinstance(model.policy, StabilizedSACPolicy) and model.policy.noise_hold == 8
+    exported = export_onnx(run.path, tmp_path / "policy.onnx")
+    assert exported["max_abs_difference"] < 1e-5
 
 
 def test_the_torch_policy_name_on_sbx_is_one_line_not_a_traceback(tmp_path):

@@ -1,6 +1,6 @@
 """SAC policies with the stabilizers the SAC ablation measures (docs/results.md, "Stabilizing SAC").
 
-``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with three opt-in changes, each a policy
+``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with four opt-in changes, each a policy
 keyword so that SB3's own ``SAC`` class trains it unchanged:
 
 - ``critic_layer_norm``: LayerNorm after every hidden linear layer of the critics (DroQ,
@@ -9,7 +9,11 @@ keyword so that SB3's own ``SAC`` class trains it unchanged:
   none; DLR-RM/stable-baselines3#2123);
 - ``actor_ema``: an exponential moving average of the actor's weights, updated after
   every actor step, that acts whenever the policy is deterministic: evaluation, saving
-  and ``evaluate.py`` see the average while exploration keeps the live actor.
+  and ``evaluate.py`` see the average while exploration keeps the live actor;
+- ``noise_hold``: the exploring action's Gaussian noise is drawn once every
+  ``noise_hold`` steps and held in between (per env), so exploration is correlated in
+  time, as SBX's SAC explores with ``use_sde`` (it reuses one noise draw per rollout).
+  Updates and evaluations are unchanged.
 
 They hook into the optimizers (``register_step_pre_hook``/``register_step_post_hook``)
 rather than into ``SAC.train``, so a saved model rebuilds them on load.
@@ -76,8 +80,11 @@ class StabilizedSACPolicy(SACPolicy):
         critic_layer_norm: bool = False,
         max_grad_norm: float | None = None,
         actor_ema: float | None = None,
+        noise_hold: int = 1,
         **kwargs: Any,
     ) -> None:
+        if isinstance(noise_hold, bool) or not isinstance(noise_hold, int) or noise_hold < 1:
+            raise ValueError(f"noise_hold must be a whole number of steps >= 1, got {noise_hold}")
         if max_grad_norm is not None and not max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be > 0, got {max_grad_norm}")
         if actor_ema is not None and not 0 < actor_ema < 1:
@@ -86,7 +93,12 @@ class StabilizedSACPolicy(SACPolicy):
         self.max_grad_norm = max_grad_norm
         self.actor_ema = actor_ema
         self.averaged_actor: Actor | None = None
+        self.noise_hold = noise_hold
+        self._held_noise: torch.Tensor | None = None
+        self._held_steps = 0
         super().__init__(*args, **kwargs)
+        if noise_hold > 1 and self.actor_kwargs.get("use_sde"):
+            raise ValueError("noise_hold holds SAC's own noise; it does not combine with use_sde")
 
     def _build(self, lr_schedule: Any) -> None:
         super()._build(lr_schedule)
@@ -124,7 +136,15 @@ class StabilizedSACPolicy(SACPolicy):
     def _predict(self, observation: Any, deterministic: bool = False) -> torch.Tensor:
         if deterministic and self.averaged_actor is not None:
             return self.averaged_actor(observation, deterministic=True)
-        return self.actor(observation, deterministic)
+        if deterministic or self.noise_hold == 1:
+            return self.actor(observation, deterministic)
+        mean, log_std, _ = self.actor.get_action_dist_params(observation)
+        held = self._held_noise
+        if held is None or held.shape != mean.shape or self._held_steps >= self.noise_hold:
+            self._held_noise = held = torch.randn_like(mean)
+            self._held_steps = 0
+        self._held_steps += 1
+        return torch.tanh(mean + log_std.exp() * held)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -132,6 +152,7 @@ class StabilizedSACPolicy(SACPolicy):
             critic_layer_norm=self.critic_layer_norm,
             max_grad_norm=self.max_grad_norm,
             actor_ema=self.actor_ema,
+            noise_hold=self.noise_hold,
         )
         return data
 
