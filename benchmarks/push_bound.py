@@ -26,6 +26,7 @@ action alone, e.g. ``-n 0 --forces 60 130 220 --directions 0 45 90``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -39,6 +40,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import minitaur_env  # noqa: F401  (registers the ids)
+from minitaur_env import Pushes
 from minitaur_env.training.callbacks import PushCurriculum
 from minitaur_env.training.evaluation import run_episodes
 from minitaur_env.training.hyperparams import algorithm_kwargs, load_hyperparams, parse_overrides
@@ -191,8 +193,7 @@ def by_force(
     policies: dict[str, Callable[[np.ndarray], np.ndarray]],
 ) -> None:
     """Per force (and direction) and policy: the share of pushes survived on the report seeds."""
-    pushes = kwargs.get("realism", {}).get("pushes", True)
-    pushes = {} if pushes is True else dict(pushes)
+    pushes = dataclasses.asdict(Pushes.coerce(kwargs.get("realism", {}).get("pushes", True)))
     directions = args.directions or [pushes.get("direction")]
     for force in args.forces:
         for direction in directions:

@@ -40,6 +40,7 @@ CONDITIONS: dict[str, dict[str, Any]] = {
     "motor strength 80 %": {"dynamics_ranges": {"motor_strength": [0.8, 0.8]}},
     "contact friction 0.5": {"dynamics_ranges": {"foot_friction": [0.5, 0.5]}},
     "pushes": {"realism": {"pushes": True}},
+    "sagittal pushes": {"realism": {"pushes": "sagittal"}},
     "full preset": dict(RANDOMIZED_KWARGS),
 }
 

@@ -34,6 +34,7 @@ from minitaur_env.sensors import (
     Observation,
     SensorHistory,
     observe,
+    quaternion_to_euler,
 )
 from minitaur_env.settings import (
     Camera,
@@ -486,7 +487,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         duration = max(1, round(pushes.duration / self.physics_time_step))
         step = self._physics_step_count
         if step >= interval and step % interval == 0:
-            self._push_force = pushes.draw(self.np_random) * self._push_scale
+            yaw = quaternion_to_euler(np.array(robot.base_pose()[1]))[2] if pushes.heading else 0.0
+            self._push_force = pushes.draw(self.np_random, yaw) * self._push_scale
         elif step < interval or step % interval >= duration:
             self._push_force = np.zeros(3)
         if self._push_force.any():

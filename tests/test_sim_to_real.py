@@ -488,3 +488,48 @@ def test_the_randomized_id_keeps_its_latency_under_a_realism_mapping():
     realism = env.unwrapped.realism
     assert realism.pd_latency == 0.003 and realism.control_latency == 0.02
     env.close()
+
+
+def test_heading_pushes_turn_with_the_robot_and_the_side_cap_spares_the_axis():
+    rng = np.random.default_rng
+    forward = Pushes(force=(150.0, 150.0), direction=0.0, heading=True)
+    np.testing.assert_allclose(forward.draw(rng(0), yaw=np.pi / 2)[:2], [0.0, 150.0], atol=1e-9)
+    world = Pushes(force=(150.0, 150.0), direction=0.0)  # control: world +x whatever the yaw
+    np.testing.assert_allclose(world.draw(rng(0), yaw=np.pi / 2)[:2], [150.0, 0.0], atol=1e-9)
+    capped, free = Pushes(max_side_force=80.0, heading=True), Pushes(heading=True)
+    yaw = 0.7
+    axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    sides, uncapped_sides, magnitudes = [], [], []
+    for seed in range(400):
+        force, uncapped = capped.draw(rng(seed), yaw), free.draw(rng(seed), yaw)
+        along = abs(force @ axis)
+        sides.append(np.linalg.norm(force - (force @ axis) * axis))
+        uncapped_sides.append(np.linalg.norm(uncapped - (uncapped @ axis) * axis))
+        magnitudes.append(np.linalg.norm(force))
+        np.testing.assert_allclose(force / magnitudes[-1], uncapped / np.linalg.norm(uncapped))
+        if along > 0.99 * magnitudes[-1]:  # nearly along the body: the full force
+            assert magnitudes[-1] == pytest.approx(np.linalg.norm(uncapped))
+    assert max(sides) <= 80.0 + 1e-9 and max(sides) > 79.0
+    assert max(magnitudes) > 200.0 and min(magnitudes) < 90.0
+    assert max(uncapped_sides) > 200.0  # control: without the cap the sides get it all
+    assert Pushes.coerce("sagittal") == Pushes(heading=True, max_side_force=80.0)
+    assert Pushes.coerce("tan2018") == Pushes.coerce(True) == Pushes()
+    with pytest.raises(ValueError, match=r"Pushes\.max_side_force must be in"):
+        Pushes(max_side_force=-1.0)
+    with pytest.raises(ValueError, match=r"Pushes\.heading must be True or False"):
+        Pushes(heading="yes")
+
+
+def test_the_env_pushes_along_the_robots_heading(monkeypatch):
+    env = MinitaurBulletEnv(
+        randomize_dynamics=False,
+        realism={"pushes": {"force": [100, 100], "direction": 0, "heading": True}},
+    )
+    env.reset(seed=0)
+    turned = tuple(euler_to_quaternion(np.array([0.0, 0.0, np.pi / 2])))
+    position, _ = env.robot.base_pose()
+    monkeypatch.setattr(env.robot, "base_pose", lambda: (position, turned))
+    forces = [env.step(np.zeros(8))[4]["push_force"] for _ in range(122)]
+    pushed = next(force for force in forces if force.any())
+    np.testing.assert_allclose(pushed[:2], [0.0, 100.0], atol=1e-6)  # the robot's forward: +y
+    env.close()
