@@ -490,32 +490,36 @@ def test_the_randomized_id_keeps_its_latency_under_a_realism_mapping():
     env.close()
 
 
-def test_heading_pushes_turn_with_the_robot_and_the_side_cap_spares_the_axis():
+def test_heading_pushes_turn_with_the_robot_and_the_bound_spares_the_axis():
     rng = np.random.default_rng
     forward = Pushes(force=(150.0, 150.0), direction=0.0, heading=True)
     np.testing.assert_allclose(forward.draw(rng(0), yaw=np.pi / 2)[:2], [0.0, 150.0], atol=1e-9)
     world = Pushes(force=(150.0, 150.0), direction=0.0)  # control: world +x whatever the yaw
     np.testing.assert_allclose(world.draw(rng(0), yaw=np.pi / 2)[:2], [150.0, 0.0], atol=1e-9)
-    capped, free = Pushes(max_side_force=80.0, heading=True), Pushes(heading=True)
+    capped = Pushes(force=(100.0, 150.0), heading=True, bound=(200.0, 80.0))
+    free = Pushes(force=(100.0, 150.0), heading=True)
     yaw = 0.7
     axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    sides, uncapped_sides, magnitudes = [], [], []
+    reach, uncapped_sides = [], []
     for seed in range(400):
         force, uncapped = capped.draw(rng(seed), yaw), free.draw(rng(seed), yaw)
-        along = abs(force @ axis)
-        sides.append(np.linalg.norm(force - (force @ axis) * axis))
+        along = force @ axis
+        across = np.linalg.norm(force - along * axis)
+        reach.append(np.hypot(along / 200.0, across / 80.0))
         uncapped_sides.append(np.linalg.norm(uncapped - (uncapped @ axis) * axis))
-        magnitudes.append(np.linalg.norm(force))
-        np.testing.assert_allclose(force / magnitudes[-1], uncapped / np.linalg.norm(uncapped))
-        if along > 0.99 * magnitudes[-1]:  # nearly along the body: the full force
-            assert magnitudes[-1] == pytest.approx(np.linalg.norm(uncapped))
-    assert max(sides) <= 80.0 + 1e-9 and max(sides) > 79.0
-    assert max(magnitudes) > 200.0 and min(magnitudes) < 90.0
-    assert max(uncapped_sides) > 200.0  # control: without the cap the sides get it all
-    assert Pushes.coerce("sagittal") == Pushes(heading=True, max_side_force=80.0)
+        np.testing.assert_allclose(
+            force / np.linalg.norm(force), uncapped / np.linalg.norm(uncapped)
+        )
+        if abs(along) > 0.99 * np.linalg.norm(force):  # along the body: the force as drawn
+            assert np.linalg.norm(force) == pytest.approx(np.linalg.norm(uncapped))
+    assert max(reach) <= 1 + 1e-9 and max(reach) > 0.99  # inside the ellipse, up to its edge
+    assert max(uncapped_sides) > 140.0  # control: without the bound the sides get it all
+    assert Pushes.coerce("sagittal") == Pushes(heading=True, bound=(130.0, 60.0))
     assert Pushes.coerce("tan2018") == Pushes.coerce(True) == Pushes()
-    with pytest.raises(ValueError, match=r"Pushes\.max_side_force must be in"):
-        Pushes(max_side_force=-1.0)
+    with pytest.raises(ValueError, match=r"Pushes\.bound across must be in \(0, 10000\] N"):
+        Pushes(bound=(130.0, 0.0))
+    with pytest.raises(ValueError, match=r"Pushes\.bound must be \(along, across\)"):
+        Pushes(bound=80.0)
     with pytest.raises(ValueError, match=r"Pushes\.heading must be True or False"):
         Pushes(heading="yes")
 
