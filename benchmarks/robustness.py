@@ -67,15 +67,23 @@ def main() -> int:
         return 2
 
 
+def shipped_policies() -> dict[str, Path]:
+    """Every shipped policy, labelled by its folder: pretrained/ppo holds more than one."""
+    return {f"shipped {model.parents[1].name}/{model.parent.name}": model
+            for _, model in pretrained_models()}  # fmt: skip
+
+
 def judge_all(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     policies = {}
     for item in args.policy:
         label, sep, path = item.partition("=")
         if not sep or not Path(path).is_file():
             parser.error(f"--policy expects LABEL=MODEL.zip with an existing file, got {item!r}")
+        if label in policies:
+            parser.error(f"--policy label {label!r} is given twice; each row needs its own")
         policies[label] = Path(path)
     if not args.policy:
-        policies = {f"shipped {model.parents[1].name}": model for _, model in pretrained_models()}
+        policies = shipped_policies()
     conditions = {name: CONDITIONS[name] for name in args.conditions or CONDITIONS}
 
     cells: dict[str, dict[str, dict[str, float]]] = {}

@@ -121,6 +121,24 @@ def test_robustness_loads_no_pickle_unless_trusted_and_says_which_flag(tmp_path)
     assert trusted.returncode == 0, trusted.stderr
 
 
+def test_robustness_judges_every_shipped_policy_and_refuses_a_label_twice(tmp_path):
+    spec = importlib.util.spec_from_file_location("robustness", REPO / "benchmarks/robustness.py")
+    robustness = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(robustness)
+    shipped = robustness.shipped_policies()
+    assert sorted(shipped.values()) == sorted(model for _, model in pretrained_models())
+    assert sum(model.parents[1].name == "ppo" for model in shipped.values()) >= 2  # two PPOs
+    model = next(iter(shipped.values()))
+    refused = run_script(
+        "benchmarks/robustness.py", "--policy", f"a={model}", "--policy", f"a={model}",
+        "--episodes", "1", "--conditions", "nominal", cwd=tmp_path,
+    )  # fmt: skip
+    assert refused.returncode == 2
+    assert error_lines(refused)[-1].endswith(
+        "--policy label 'a' is given twice; each row needs its own"
+    )
+
+
 def figure_line(pattern: str, text: str) -> str:
     found = re.search(pattern, text, re.MULTILINE)
     assert found, f"{pattern!r} not in:\n{text}"
