@@ -15,9 +15,10 @@ at rest (the zero action).
 
 With ``--forces F ...`` it also prints, for the zero action and the trained policy, the
 share survived of pushes of exactly F newtons each, in the direction ``pushes`` sets
-(``--env-kwargs 'realism={pushes: {direction: 90}}'`` trains and tests on pushes from the side only)
-or in each of ``--directions`` (degrees, 0 forward). ``-n 0`` trains nothing: the zero
-action alone, e.g. ``-n 0 --forces 60 130 220 --directions 0 45 90``.
+(``--env-kwargs 'realism={pushes: {direction: 90}}'`` trains and tests on pushes from the
+side only) or in each of ``--directions`` (degrees, 0 forward). ``-n 0`` trains nothing:
+the zero action alone, e.g. ``-n 0 --forces 60 130 220 --directions 0 45 90``. Every
+figure is over ``--report-episodes`` (20) episodes from the report seeds.
 
     python benchmarks/push_bound.py [--env MinitaurBulletEnv-v0] [-n 1000000]
         [--env-kwargs dynamics_ranges=classic] [--seed 0] [--forces 60 130 220]
@@ -46,7 +47,6 @@ from minitaur_env.training.evaluation import run_episodes
 from minitaur_env.training.hyperparams import algorithm_kwargs, load_hyperparams, parse_overrides
 from minitaur_env.training.seeds import REPORT_SEED, judging_block
 
-REPORT_SEEDS = judging_block(REPORT_SEED, 20)
 # The entry's keys that say how to build the run, not arguments of PPO itself.
 ENTRY_SETTINGS = ("n_timesteps", "policy", "n_envs", "normalize")
 
@@ -137,6 +137,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
+        "--report-episodes", type=int, default=20, help="episodes from the report seeds"
+    )
+    parser.add_argument(
         "--forces",
         type=float,
         nargs="*",
@@ -157,13 +160,16 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"-n must be 0 or more steps, got {args.timesteps}")
     if args.directions and not args.forces:
         parser.error("--directions needs --forces")
+    if args.report_episodes < 1:
+        parser.error(f"--report-episodes must be 1 or more, got {args.report_episodes}")
     torch.set_num_threads(1)
+    report_seeds = judging_block(REPORT_SEED, args.report_episodes)
     kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
 
     evaluation_env = make_env(args.env, kwargs, args.history)
     zeros = np.zeros(evaluation_env.action_space.shape)
-    tally = play(lambda _: zeros, evaluation_env, REPORT_SEEDS)
-    print(f"baseline, zero action on the report seeds: {tally.line(20)}", flush=True)
+    tally = play(lambda _: zeros, evaluation_env, report_seeds)
+    print(f"baseline, zero action on the report seeds: {tally.line(len(report_seeds))}", flush=True)
     policies: dict[str, Callable[[np.ndarray], np.ndarray]] = {"zero action": lambda _: zeros}
     if args.timesteps == 0:
         by_force(args, kwargs, policies)
@@ -183,7 +189,7 @@ def main(argv: list[str] | None = None) -> None:
     ]
     model.learn(args.timesteps, callback=callbacks)
     venv.training = False
-    report("report seeds (20)", model, evaluation_env, REPORT_SEEDS)
+    report(f"report seeds ({len(report_seeds)})", model, evaluation_env, report_seeds)
     by_force(args, kwargs, {**policies, "trained": deterministic_policy(model)})
 
 
@@ -193,6 +199,7 @@ def by_force(
     policies: dict[str, Callable[[np.ndarray], np.ndarray]],
 ) -> None:
     """Per force (and direction) and policy: the share of pushes survived on the report seeds."""
+    report_seeds = judging_block(REPORT_SEED, args.report_episodes)
     pushes = dataclasses.asdict(Pushes.coerce(kwargs.get("realism", {}).get("pushes", True)))
     directions = args.directions or [pushes.get("direction")]
     for force in args.forces:
@@ -201,9 +208,8 @@ def by_force(
             env = make_env(args.env, with_pushes(kwargs, setting), args.history)
             label = f"{force:>6.0f} N" + (f"  {direction:>4.0f} deg" if args.directions else "")
             for name, policy in policies.items():
-                print(
-                    f"{label}  {name:<12}  {play(policy, env, REPORT_SEEDS).line(20)}", flush=True
-                )
+                tally = play(policy, env, report_seeds)
+                print(f"{label}  {name:<12}  {tally.line(len(report_seeds))}", flush=True)
 
 
 if __name__ == "__main__":

@@ -45,7 +45,7 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 }
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--policy",
@@ -59,7 +59,7 @@ def main() -> int:
     parser.add_argument("--conditions", nargs="+", choices=list(CONDITIONS), metavar="NAME")
     parser.add_argument("--json", type=Path, help="also write the cells as JSON")
     add_trust_pickle(parser)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     try:
         return judge_all(args, parser)
     except UsageError as error:

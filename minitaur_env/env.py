@@ -678,12 +678,15 @@ def _warn_timing_moved(preset_name: str | None, dynamics_ranges: Any, realism: A
 
 def _typical(realism: Realism) -> EpisodeRealism:
     """The values before the first reset: the fixed ones, and the middle of each range."""
-    middle = {
-        name: (value.low + value.high) / 2 if isinstance(value, Uniform) else value
-        for name in ("control_time_step", "control_latency", "pd_latency", "imu_noise_stdev")
-        for value in [getattr(realism, name)]
-    }
+
+    def middle(value: Any) -> Any:
+        return (value.low + value.high) / 2 if isinstance(value, Uniform) else value
+
     bias = realism.imu_bias
-    if isinstance(bias, Uniform):
-        bias = ((bias.low + bias.high) / 2,) * 3
-    return EpisodeRealism(**middle, imu_bias=tuple(bias))
+    return EpisodeRealism(
+        control_time_step=middle(realism.control_time_step),
+        control_latency=middle(realism.control_latency),
+        pd_latency=middle(realism.pd_latency),
+        imu_noise_stdev=middle(realism.imu_noise_stdev),
+        imu_bias=(middle(bias),) * 3 if isinstance(bias, Uniform) else tuple(bias),
+    )

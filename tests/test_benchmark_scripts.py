@@ -121,7 +121,7 @@ def test_robustness_loads_no_pickle_unless_trusted_and_says_which_flag(tmp_path)
     assert trusted.returncode == 0, trusted.stderr
 
 
-def test_robustness_judges_every_shipped_policy_and_refuses_a_label_twice(tmp_path):
+def test_robustness_judges_every_shipped_policy_and_refuses_a_label_twice(capsys):
     spec = importlib.util.spec_from_file_location("robustness", REPO / "benchmarks/robustness.py")
     robustness = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(robustness)
@@ -129,13 +129,14 @@ def test_robustness_judges_every_shipped_policy_and_refuses_a_label_twice(tmp_pa
     assert sorted(shipped.values()) == sorted(model for _, model in pretrained_models())
     assert sum(model.parents[1].name == "ppo" for model in shipped.values()) >= 2  # two PPOs
     model = next(iter(shipped.values()))
-    refused = run_script(
-        "benchmarks/robustness.py", "--policy", f"a={model}", "--policy", f"a={model}",
-        "--episodes", "1", "--conditions", "nominal", cwd=tmp_path,
-    )  # fmt: skip
-    assert refused.returncode == 2
-    assert error_lines(refused)[-1].endswith(
-        "--policy label 'a' is given twice; each row needs its own"
+    with pytest.raises(SystemExit) as refused:
+        robustness.main(["--policy", f"a={model}", "--policy", f"a={model}", "--episodes", "1"])
+    assert refused.value.code == 2
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .splitlines()[-1]
+        .endswith("--policy label 'a' is given twice; each row needs its own")
     )
 
 
@@ -251,42 +252,47 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
 def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_path):
     result = run_script(
         "benchmarks/push_bound.py", "-n", "2048", "--eval-freq", "1000", "--eval-episodes", "1",
-        "--env-kwargs", "realism={pushes: {direction: 90}}", "--forces", "400", cwd=tmp_path,
+        "--env-kwargs", "realism={pushes: {direction: 90}}", "--forces", "400",
+        "--report-episodes", "4", cwd=tmp_path,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     row = r"falls ([0-9]+)/([0-9]+)  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
     # Legs at rest fall at the first full-force push or soon after: the bound's baseline.
     falls, episodes, pushes, survived = figure(rf"baseline, zero action.*: {row}", result.stdout)
-    assert episodes == 20 and falls >= 15 and pushes >= 1
+    assert episodes == 4 and falls >= 3 and pushes >= 1
     assert survived / 100 == pytest.approx(1 - falls / (pushes * episodes), abs=0.001)
     assert len(re.findall(rf"^ +[0-9,]+  {row}", result.stdout, re.M)) == 2  # at 1000, 2000
-    falls, episodes, pushes, survived = figure(rf"report seeds \(20\)  {row}", result.stdout)
-    assert episodes == 20 and pushes >= 1 and 0 <= survived <= 100
+    falls, episodes, pushes, survived = figure(rf"report seeds \(4\)  {row}", result.stdout)
+    assert episodes == 4 and pushes >= 1 and 0 <= survived <= 100
     # A 400 N push from the side, the force given and not drawn, topples both at the first.
     for name in ("zero action", "trained"):
         falls, episodes, pushes, survived = figure(rf"400 N  {name} +{row}", result.stdout)
-        assert (falls, episodes, pushes, survived) == (20, 20, 1.0, 0.0)
+        assert (falls, episodes, pushes, survived) == (4, 4, 1.0, 0.0)
     assert not list(tmp_path.iterdir())  # nothing written: it only prints
 
 
 def test_push_bound_without_training_maps_the_zero_action_by_force_and_direction(tmp_path):
     result = run_script(
         "benchmarks/push_bound.py", "-n", "0", "--forces", "400", "--directions", "90", "-90",
-        cwd=tmp_path,
+        "--report-episodes", "4", cwd=tmp_path,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    row = r"falls ([0-9]+)/20  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
+    row = r"falls ([0-9]+)/4  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
     for direction in ("90", "-90"):
         falls, pushes, survived = figure(
             rf"400 N +{direction} deg  zero action +{row}", result.stdout
         )
-        assert (falls, pushes, survived) == (20, 1.0, 0.0)  # from either side, at the first
-    assert "trained" not in result.stdout and "report seeds (20)" not in result.stdout
+        assert (falls, pushes, survived) == (4, 1.0, 0.0)  # from either side, at the first
+    assert "trained" not in result.stdout and "report seeds (" not in result.stdout
 
 
 @pytest.mark.parametrize(
     ("arguments", "message"),
-    [(["-n", "-5"], "-n must be 0 or more"), (["--directions", "90"], "--directions needs")],
+    [
+        (["-n", "-5"], "-n must be 0 or more"),
+        (["--directions", "90"], "--directions needs"),
+        (["--report-episodes", "0"], "--report-episodes must be 1 or more, got 0"),
+    ],
 )
 def test_push_bound_refuses_a_negative_budget_and_directions_without_forces(
     tmp_path, arguments, message
