@@ -165,6 +165,10 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     report_seeds = judging_block(REPORT_SEED, args.report_episodes)
     kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
+    if not isinstance(kwargs.get("realism", {}), dict):
+        parser.error(
+            "--env-kwargs realism must be a mapping of fields, e.g. 'realism={pushes: sagittal}'"
+        )
 
     evaluation_env = make_env(args.env, kwargs, args.history)
     zeros = np.zeros(evaluation_env.action_space.shape)
