@@ -24,8 +24,14 @@ SMALL = {"learning_starts": 30, "batch_size": 16, "buffer_size": 1000}
 
 def sac(**policy_kwargs) -> SAC:
     kwargs = {"net_arch": [32, 32], **policy_kwargs}
-    return SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=0, device="cpu",
-               policy_kwargs=kwargs, **SMALL)  # fmt: skip
+    return SAC(
+        StabilizedSACPolicy,
+        gym.make("Pendulum-v1"),
+        seed=0,
+        device="cpu",
+        policy_kwargs=kwargs,
+        **SMALL,
+    )
 
 
 def critic_output(model: SAC) -> torch.Tensor:
@@ -109,9 +115,15 @@ def test_the_average_leaves_training_unchanged(use_sde):
     # The SAC ablation judges an actor_ema run's live actor as the run without the
     # average: that holds only if averaging draws nothing from the random stream.
     def trained(**policy_kwargs) -> SAC:
-        model = SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=0, device="cpu",
-                    use_sde=use_sde, policy_kwargs={"net_arch": [32, 32], **policy_kwargs},
-                    **SMALL)  # fmt: skip
+        model = SAC(
+            StabilizedSACPolicy,
+            gym.make("Pendulum-v1"),
+            seed=0,
+            device="cpu",
+            use_sde=use_sde,
+            policy_kwargs={"net_arch": [32, 32], **policy_kwargs},
+            **SMALL,
+        )
         model.learn(80)
         return model
 
@@ -121,8 +133,15 @@ def test_the_average_leaves_training_unchanged(use_sde):
     ):
         torch.testing.assert_close(theirs, mine, rtol=0, atol=0)
     # The negative control: another seed's live actor differs.
-    other = SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=1, device="cpu",
-                use_sde=use_sde, policy_kwargs={"net_arch": [32, 32]}, **SMALL)  # fmt: skip
+    other = SAC(
+        StabilizedSACPolicy,
+        gym.make("Pendulum-v1"),
+        seed=1,
+        device="cpu",
+        use_sde=use_sde,
+        policy_kwargs={"net_arch": [32, 32]},
+        **SMALL,
+    )
     other.learn(80)
     first = next(other.policy.actor.parameters())
     assert not torch.equal(first, next(plain.policy.actor.parameters()))
@@ -130,8 +149,14 @@ def test_the_average_leaves_training_unchanged(use_sde):
 
 def test_held_noise_repeats_the_exploring_draw_for_its_steps_and_no_longer(tmp_path):
     def policy(hold: int) -> SAC:
-        return SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), seed=0, device="cpu",
-                   policy_kwargs={"net_arch": [32, 32], "noise_hold": hold}, **SMALL)  # fmt: skip
+        return SAC(
+            StabilizedSACPolicy,
+            gym.make("Pendulum-v1"),
+            seed=0,
+            device="cpu",
+            policy_kwargs={"net_arch": [32, 32], "noise_hold": hold},
+            **SMALL,
+        )
 
     obs = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.5]], dtype=np.float32)  # two envs
     held = policy(4)
@@ -152,18 +177,33 @@ def test_held_noise_repeats_the_exploring_draw_for_its_steps_and_no_longer(tmp_p
         with pytest.raises(ValueError, match="noise_hold must be a whole number of steps >= 1"):
             policy(bad)
     with pytest.raises(ValueError, match="does not combine with use_sde"):
-        SAC(StabilizedSACPolicy, gym.make("Pendulum-v1"), use_sde=True, device="cpu",
-            policy_kwargs={"noise_hold": 8}, **SMALL)  # fmt: skip
+        SAC(
+            StabilizedSACPolicy,
+            gym.make("Pendulum-v1"),
+            use_sde=True,
+            device="cpu",
+            policy_kwargs={"noise_hold": 8},
+            **SMALL,
+        )
 
 
 def test_the_policy_and_its_held_noise_train_resume_export_and_bad_values_are_one_line(tmp_path):
     def config(**policy_kwargs):
         return ExperimentConfig.resolve(
-            "sac", "Pendulum-v1", n_timesteps=60, eval_freq=0, save_freq=30, vec_env="dummy",
+            "sac",
+            "Pendulum-v1",
+            n_timesteps=60,
+            eval_freq=0,
+            save_freq=30,
+            vec_env="dummy",
             device="cpu",
-            hyperparams={**SMALL, "policy": POLICY_NAME,
-                         "policy_kwargs": {"net_arch": [8], **policy_kwargs}},
-        )  # fmt: skip
+            hyperparams={
+                **SMALL,
+                "policy": POLICY_NAME,
+                "policy_kwargs": {"net_arch": [8], **policy_kwargs},
+                "target_entropy": "auto",  # as the held-noise entry: its resume once failed
+            },
+        )
 
     run = Experiment.create(config(critic_layer_norm=True, noise_hold=8), tmp_path, verbose=0)
     result = run.run()
@@ -182,9 +222,15 @@ def test_the_policy_and_its_held_noise_train_resume_export_and_bad_values_are_on
 def test_the_torch_policy_name_on_sbx_is_one_line_not_a_traceback(tmp_path):
     needs("sbx")
     config = ExperimentConfig.resolve(
-        "sac", "Pendulum-v1", n_timesteps=60, eval_freq=0, save_freq=0, vec_env="dummy",
-        backend="sbx", hyperparams={**SMALL, "policy": POLICY_NAME},
-    )  # fmt: skip
+        "sac",
+        "Pendulum-v1",
+        n_timesteps=60,
+        eval_freq=0,
+        save_freq=0,
+        vec_env="dummy",
+        backend="sbx",
+        hyperparams={**SMALL, "policy": POLICY_NAME},
+    )
     with pytest.raises(UsageError, match="a PyTorch policy for --backend sb3"):
         Experiment.create(config, tmp_path, verbose=0).run()
     assert not any(tmp_path.rglob("config.yml"))  # the run that never started is gone

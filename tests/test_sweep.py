@@ -33,16 +33,33 @@ needs("rliable")
 
 TINY_SAC = {"learning_starts": 100, "batch_size": 32, "policy_kwargs": {"net_arch": [32]}}
 SWEEP_ARGS = [
-    "--env", "Pendulum-v1", "--eval-freq", "500", "--eval-episodes", "2", "--save-freq", "500",
-    "--hyperparams", "learning_starts=100", "batch_size=32", "policy_kwargs={net_arch: [32]}",
-]  # fmt: skip
+    "--env",
+    "Pendulum-v1",
+    "--eval-freq",
+    "500",
+    "--eval-episodes",
+    "2",
+    "--save-freq",
+    "500",
+    "--hyperparams",
+    "learning_starts=100",
+    "batch_size=32",
+    "policy_kwargs={net_arch: [32]}",
+]
 
 
 def base(n_timesteps: int = 400) -> ExperimentConfig:
     return ExperimentConfig.resolve(
-        "sac", "Pendulum-v1", hyperparams=TINY_SAC, n_timesteps=n_timesteps, eval_freq=200,
-        eval_episodes=2, save_freq=200, vec_env="dummy", device="cpu",
-    )  # fmt: skip
+        "sac",
+        "Pendulum-v1",
+        hyperparams=TINY_SAC,
+        n_timesteps=n_timesteps,
+        eval_freq=200,
+        eval_episodes=2,
+        save_freq=200,
+        vec_env="dummy",
+        device="cpu",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -116,8 +133,11 @@ def test_seeds_of_one_configuration_give_a_table_from_their_run_folders(
     (sweep.folder / "summary.csv").unlink()
     again = subprocess.run(
         sweep_command("--summarize", str(sweep.folder), "--milestones", "-3000", "0"),
-        cwd=tmp_path, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert again.returncode == 0, again.stderr
     assert f"{row['iqm']:.2f}" in again.stdout and (sweep.folder / "summary.csv").is_file()
     # More seeds of the configuration from a later sweep make one table with these...
@@ -236,9 +256,14 @@ def sweep_at_its_first_checkpoint(tmp_path, args: list[str], name: str) -> subpr
     """A sweep process, once one of its trials wrote its 500-step checkpoint."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = subprocess.Popen(
-        sweep_command(*args), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True, env=env, start_new_session=True,
-    )  # fmt: skip
+        sweep_command(*args),
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,
+    )
     deadline = time.monotonic() + 900  # generous: a machine 5x slower still gets there
     while not list(tmp_path.glob(f"{name}/runs/*/sac/*/checkpoints/rl_model_500_steps.zip")):
         assert time.monotonic() < deadline and process.poll() is None, process.stderr.read()
@@ -248,18 +273,35 @@ def sweep_at_its_first_checkpoint(tmp_path, args: list[str], name: str) -> subpr
 
 def test_ctrl_c_leaves_a_sweep_that_resume_finishes(tmp_path):
     # Cut at the 500-step checkpoint, with 1000 steps left so the cut lands before the end.
+    # One trial's worker dies first, as under the OOM killer: Tune marks that trial errored,
+    # and --resume once skipped errored trials, so a crashed seed never finished.
+    import psutil
+
     args = [*SWEEP_ARGS, "-n", "1500", "--seeds", "2", "-f", str(tmp_path), "--name", "cut"]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     process = sweep_at_its_first_checkpoint(tmp_path, args, "cut")
+    workers = [
+        child
+        for child in psutil.Process(process.pid).children(recursive=True)
+        if "ImplicitFunc" in " ".join(child.cmdline())
+    ]
+    assert workers, "no trial worker found"
+    workers[0].kill()
+    workers[0].wait(timeout=60)
+    time.sleep(2)  # Tune sees the dead worker (or not yet: --resume must finish it either way)
     os.killpg(process.pid, signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, stderr
     assert "--resume" in stderr.splitlines()[-1]
 
     resumed = subprocess.run(
-        sweep_command(*args, "--resume"), cwd=tmp_path, capture_output=True, text=True,
-        env=env, timeout=600,
-    )  # fmt: skip
+        sweep_command(*args, "--resume"),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert resumed.returncode == 0, resumed.stderr
     rows = summarize(tmp_path / "cut")
     assert rows[0]["seeds_done"] == 2 and rows[0]["steps"] == 1500
@@ -312,8 +354,9 @@ def test_trials_the_cluster_cannot_place_are_refused_not_waited_for():
 def test_without_the_ray_extra_the_sweep_says_so_in_one_line():
     hide_ray = "import sys\nsys.modules['ray'] = None\nsys.argv = ['sweep', '--seeds', '1']\n"
     run = hide_ray + "import runpy\nrunpy.run_module('minitaur_env.sweep', run_name='__main__')"
-    result = subprocess.run([sys.executable, "-c", run], capture_output=True, text=True,
-                            timeout=120)  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-c", run], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 2
     assert error_lines(result) == [
         "python -m minitaur_env.sweep: error: ray is not installed; sweeps need the ray extra: "
@@ -378,18 +421,45 @@ def test_address_runs_the_trials_on_the_cluster_it_names(tmp_path):
 
     session = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))  # short: Ray's socket paths
     gcs, dashboard, agent, agent_grpc, client, metrics, runtime_env = free_ports(7)
-    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_USAGE_STATS_ENABLED": "0",
-           "OMP_NUM_THREADS": "1"}  # fmt: skip
+    env = {
+        **os.environ,
+        "RAY_AUTH_MODE": "token",
+        "RAY_USAGE_STATS_ENABLED": "0",
+        "OMP_NUM_THREADS": "1",
+    }
     head = subprocess.Popen(
-        [str(Path(sys.executable).parent / "ray"), "start", "--head", "--block",
-         "--node-ip-address", "127.0.0.1", "--port", str(gcs), "--num-cpus", "2",
-         "--include-dashboard=false",
-         "--dashboard-port", str(dashboard), "--dashboard-agent-listen-port", str(agent),
-         "--dashboard-agent-grpc-port", str(agent_grpc), "--ray-client-server-port", str(client),
-         "--metrics-export-port", str(metrics), "--runtime-env-agent-port", str(runtime_env),
-         "--temp-dir", str(session)],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True,
-    )  # fmt: skip
+        [
+            str(Path(sys.executable).parent / "ray"),
+            "start",
+            "--head",
+            "--block",
+            "--node-ip-address",
+            "127.0.0.1",
+            "--port",
+            str(gcs),
+            "--num-cpus",
+            "2",
+            "--include-dashboard=false",
+            "--dashboard-port",
+            str(dashboard),
+            "--dashboard-agent-listen-port",
+            str(agent),
+            "--dashboard-agent-grpc-port",
+            str(agent_grpc),
+            "--ray-client-server-port",
+            str(client),
+            "--metrics-export-port",
+            str(metrics),
+            "--runtime-env-agent-port",
+            str(runtime_env),
+            "--temp-dir",
+            str(session),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 300
         while not list(session.glob("session_*/logs/raylet.out")):
@@ -399,9 +469,13 @@ def test_address_runs_the_trials_on_the_cluster_it_names(tmp_path):
         address = f"127.0.0.1:{gcs}"
         args = [*SWEEP_ARGS, "-n", "500", "--seeds", "1", "-f", str(tmp_path), "--name", "c"]
         done = subprocess.run(
-            sweep_command(*args, "--address", address), cwd=tmp_path, capture_output=True,
-            text=True, timeout=600, env=env,
-        )  # fmt: skip
+            sweep_command(*args, "--address", address),
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            env=env,
+        )
         assert done.returncode == 0, done.stderr[-2000:]
         (trial,) = tmp_path.glob("c/runs/*/trial.yml")
         node = trial.read_text().split("node: ")[1].split()[0]

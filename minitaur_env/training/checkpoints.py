@@ -150,6 +150,10 @@ def resume_kwargs(config: ExperimentConfig, algorithm: type[BaseAlgorithm]) -> d
     loader does not take from the zip's pickles."""
     kwargs = algorithm_kwargs(config.hyperparams)
     kwargs.pop("policy_kwargs", None)  # the saved network keeps its shape
+    if kwargs.get("target_entropy") == "auto":
+        # The zip holds the number "auto" resolved to; the model is loaded without an env,
+        # so resolving "auto" again would read the action space of None.
+        del kwargs["target_entropy"]
     defaults = inspect.signature(algorithm.__init__).parameters
     for key in TRAINING_ONLY:
         if key not in kwargs and key in defaults:

@@ -128,7 +128,9 @@ class Sweep:
         if resume:
             if not tune.Tuner.can_restore(path):
                 raise UsageError(f"--resume: no Ray Tune sweep to resume in {self.folder}")
-            return tune.Tuner.restore(path, trainable, resume_unfinished=True)
+            # An errored trial (a crash, a killed worker) continues from its run folder's
+            # newest checkpoint like a paused one: Tune's default would leave it unfinished.
+            return tune.Tuner.restore(path, trainable, resume_unfinished=True, resume_errored=True)
         space: dict[str, Any] = {
             "base": self.base.to_dict(),
             "runs": str((self.folder / RUNS).resolve()),
