@@ -69,8 +69,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def shipped_policies() -> dict[str, Path]:
     """Every shipped policy, labelled by its folder: pretrained/ppo holds more than one."""
-    return {f"shipped {model.parents[1].name}/{model.parent.name}": model
-            for _, model in pretrained_models()}  # fmt: skip
+    return {
+        f"shipped {model.parents[1].name}/{model.parent.name}": model
+        for _, model in pretrained_models()
+    }
 
 
 def judge_all(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:

@@ -77,19 +77,38 @@ def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tm
     model = next(model for _, model in pretrained_models() if model.parents[1].name == "sac")
     cells = tmp_path / "cells.json"
     result = run_script(
-        "benchmarks/robustness.py", "--policy", f"sac={model}", "--episodes", "1",
-        "--conditions", "pushes", "--json", str(cells), cwd=tmp_path,
-    )  # fmt: skip
+        "benchmarks/robustness.py",
+        "--policy",
+        f"sac={model}",
+        "--episodes",
+        "1",
+        "--conditions",
+        "pushes",
+        "--json",
+        str(cells),
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     cell = json.loads(cells.read_text())["sac"]["pushes"]
     assert "| sac | " in result.stdout
     flags = shlex.split(figure_line(r"^pushes: --env-kwargs (.*)$", result.stdout))
     statistics = tmp_path / "evaluate.json"
     again = run_script(
-        "evaluate.py", "--model", str(model), "--episodes", "1", "--seed", "12345",
-        "--env", "MinitaurBulletEnv-v0", "--env-kwargs", *flags, "--json", str(statistics),
+        "evaluate.py",
+        "--model",
+        str(model),
+        "--episodes",
+        "1",
+        "--seed",
+        "12345",
+        "--env",
+        "MinitaurBulletEnv-v0",
+        "--env-kwargs",
+        *flags,
+        "--json",
+        str(statistics),
         cwd=tmp_path,
-    )  # fmt: skip
+    )
     assert again.returncode == 0, again.stderr
     summary = json.loads(statistics.read_text())["summary"]
     assert summary["return"]["mean"] == pytest.approx(cell["mean"], abs=1e-6)
@@ -111,8 +130,15 @@ def test_robustness_loads_no_pickle_unless_trusted_and_says_which_flag(tmp_path)
                 target.writestr(name, source.read(name))
     for statistics in run.rglob("*vecnormalize*.json"):
         statistics.unlink()
-    args = ["benchmarks/robustness.py", "--policy", f"sac={model}", "--episodes", "1",
-            "--conditions", "pushes"]  # fmt: skip
+    args = [
+        "benchmarks/robustness.py",
+        "--policy",
+        f"sac={model}",
+        "--episodes",
+        "1",
+        "--conditions",
+        "pushes",
+    ]
     refused = run_script(*args, cwd=tmp_path)
     assert refused.returncode == 2 and len(error_lines(refused)) == 1, refused.stderr
     assert error_lines(refused)[0].startswith("robustness.py: error: ")
@@ -152,8 +178,11 @@ def test_threads_under_load_gives_the_default_variant_torchs_real_default(monkey
     clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
     default = subprocess.run(
         [sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
-        capture_output=True, text=True, env=clean, check=True,
-    ).stdout.strip()  # fmt: skip
+        capture_output=True,
+        text=True,
+        env=clean,
+        check=True,
+    ).stdout.strip()
     spec = importlib.util.spec_from_file_location(
         "threads", REPO / "benchmarks/threads_under_load.py"
     )
@@ -179,14 +208,32 @@ def test_training_speed_times_every_variant_and_its_baseline_at_torchs_default(t
     clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
     default = subprocess.run(
         [sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
-        capture_output=True, text=True, env=clean, check=True,
-    ).stdout.strip()  # fmt: skip
+        capture_output=True,
+        text=True,
+        env=clean,
+        check=True,
+    ).stdout.strip()
     result = subprocess.run(
-        [sys.executable, str(REPO / "benchmarks/training_speed.py"), "--steps", "16",
-         "--warmup", "32", "--untimed", "8", "--ppo-steps", "16", "--ppo-rollout", "8"],
-        capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"},
-        timeout=900, cwd=tmp_path,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(REPO / "benchmarks/training_speed.py"),
+            "--steps",
+            "16",
+            "--warmup",
+            "32",
+            "--untimed",
+            "8",
+            "--ppo-steps",
+            "16",
+            "--ppo-rollout",
+            "8",
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        timeout=900,
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     (baseline,) = figure(rf"SB3 SAC defaults \({default} torch threads\): {NUMBER}", result.stdout)
     variants = re.findall(r"^(.*): ([0-9.]+) env steps/s; ratio ([0-9.]+)x", result.stdout, re.M)
@@ -224,9 +271,17 @@ def test_sweep_overhead_runs_the_same_trials_both_ways(tmp_path):
 
 def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path):
     result = run_script(
-        "benchmarks/gait_prior.py", "--episodes", "1", "--frequency", "4", "0.01",
-        "--push-forces", "0.001", "300", cwd=tmp_path,
-    )  # fmt: skip
+        "benchmarks/gait_prior.py",
+        "--episodes",
+        "1",
+        "--frequency",
+        "4",
+        "0.01",
+        "--push-forces",
+        "0.001",
+        "300",
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     cell = r"(-?[0-9.]+) at (-?[0-9.]+) m/s, ([0-9]+) falls"
     rest, rest_speed, _ = figure(rf"baseline, no generator, classic: +{cell}", result.stdout)
@@ -251,10 +306,21 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
 
 def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_path):
     result = run_script(
-        "benchmarks/push_bound.py", "-n", "2048", "--eval-freq", "1000", "--eval-episodes", "1",
-        "--env-kwargs", "realism={pushes: {direction: 90}}", "--forces", "400",
-        "--report-episodes", "4", cwd=tmp_path,
-    )  # fmt: skip
+        "benchmarks/push_bound.py",
+        "-n",
+        "2048",
+        "--eval-freq",
+        "1000",
+        "--eval-episodes",
+        "1",
+        "--env-kwargs",
+        "realism={pushes: {direction: 90}}",
+        "--forces",
+        "400",
+        "--report-episodes",
+        "4",
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     row = r"falls ([0-9]+)/([0-9]+)  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
     # Legs at rest fall at the first full-force push or soon after: the bound's baseline.
@@ -273,9 +339,18 @@ def test_push_bound_trains_for_survival_and_counts_the_pushes_it_survived(tmp_pa
 
 def test_push_bound_without_training_maps_the_zero_action_by_force_and_direction(tmp_path):
     result = run_script(
-        "benchmarks/push_bound.py", "-n", "0", "--forces", "400", "--directions", "90", "-90",
-        "--report-episodes", "4", cwd=tmp_path,
-    )  # fmt: skip
+        "benchmarks/push_bound.py",
+        "-n",
+        "0",
+        "--forces",
+        "400",
+        "--directions",
+        "90",
+        "-90",
+        "--report-episodes",
+        "4",
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     row = r"falls ([0-9]+)/4  pushes begun ([0-9.]+)/episode  survived ([0-9.]+)%"
     for direction in ("90", "-90"):
@@ -341,10 +416,17 @@ def test_push_bound_blames_a_fall_on_the_pushes_only_after_one_began():
 def test_learning_prints_each_groups_steps_and_minutes_as_a_ratio_to_the_baseline(tmp_path):
     kept = REPO / "benchmarks" / "results"
     result = run_script(
-        "benchmarks/learning.py", "--group", "sac", *(str(kept / "sac-default" / f"seed{s}")
-        for s in range(5)), "--group", "ppo", *(str(kept / "ppo-default" / f"seed{s}")
-        for s in range(3)), "--at", "150000", cwd=tmp_path,
-    )  # fmt: skip
+        "benchmarks/learning.py",
+        "--group",
+        "sac",
+        *(str(kept / "sac-default" / f"seed{s}") for s in range(5)),
+        "--group",
+        "ppo",
+        *(str(kept / "ppo-default" / f"seed{s}") for s in range(3)),
+        "--at",
+        "150000",
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     lines = [line for line in result.stdout.splitlines() if line.startswith("sac to 15: ")]
     (line,) = lines

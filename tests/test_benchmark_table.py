@@ -26,9 +26,21 @@ FAST_SAC = ["--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_si
 def finished_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
     result = run_script(
-        "train.py", "-n", "160", *FAST_SAC, "--seed", "3", "--eval-freq", "80",
-        "--eval-episodes", "1", "--save-freq", "80", *TINY, cwd=root,
-    )  # fmt: skip
+        "train.py",
+        "-n",
+        "160",
+        *FAST_SAC,
+        "--seed",
+        "3",
+        "--eval-freq",
+        "80",
+        "--eval-episodes",
+        "1",
+        "--save-freq",
+        "80",
+        *TINY,
+        cwd=root,
+    )
     assert result.returncode == 0, result.stderr
     return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
 
@@ -70,9 +82,16 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
     assert not RunFolder(kept).learning_curve.exists()
     shipped = tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1"
     result = run_script(
-        "-m", "minitaur_env.ship", str(kept), "--final-only", "--episodes", "1",
-        "--ship", str(shipped), cwd=tmp_path,
-    )  # fmt: skip
+        "-m",
+        "minitaur_env.ship",
+        str(kept),
+        "--final-only",
+        "--episodes",
+        "1",
+        "--ship",
+        str(shipped),
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     assert RunFolder(shipped).learning_curve.read_bytes().startswith(b"\x89PNG")
     provenance = yaml.safe_load(RunFolder(shipped).provenance.read_text())
@@ -127,8 +146,10 @@ def test_a_model_trained_on_from_a_kept_run_names_that_runs_command(finished_run
     # A shipped model's own provenance still wins: its training as it was shipped.
     kept.provenance.write_text("training: {commands: [python train.py --seed 9], seed: 9}\n")
     assert shipping.origin_of(str(kept.zoo_model)) == {
-        "trained_agent": str(kept.zoo_model), "commands": ["python train.py --seed 9"], "seed": 9,
-    }  # fmt: skip
+        "trained_agent": str(kept.zoo_model),
+        "commands": ["python train.py --seed 9"],
+        "seed": 9,
+    }
 
 
 @pytest.fixture
@@ -236,10 +257,21 @@ def test_the_confidence_interval_is_the_same_on_every_call_and_leaves_numpy_alon
 
 def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_run, table):
     trained = run_script(
-        "train.py", "-n", "160", *FAST_SAC, "policy=StabilizedMlpPolicy",
-        "policy_kwargs={net_arch: [64, 64], actor_ema: 0.999}", "--seed", "3",
-        "--eval-freq", "80", "--eval-episodes", "1", *TINY, cwd=tmp_path,
-    )  # fmt: skip
+        "train.py",
+        "-n",
+        "160",
+        *FAST_SAC,
+        "policy=StabilizedMlpPolicy",
+        "policy_kwargs={net_arch: [64, 64], actor_ema: 0.999}",
+        "--seed",
+        "3",
+        "--eval-freq",
+        "80",
+        "--eval-episodes",
+        "1",
+        *TINY,
+        cwd=tmp_path,
+    )
     assert trained.returncode == 0, trained.stderr
     run = tmp_path / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
     run_script("benchmarks/keep_runs.py", str(run), "--into", "r/ema", cwd=tmp_path)
@@ -258,9 +290,12 @@ def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_
     # A run trained without the average has no live actor to tell apart: one line.
     run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/plain", cwd=tmp_path)
     refused = run_script(
-        "benchmarks/minitaur_table.py", "--row", f"p={tmp_path}/r/plain/seed3#live-actor",
-        *args, cwd=tmp_path,
-    )  # fmt: skip
+        "benchmarks/minitaur_table.py",
+        "--row",
+        f"p={tmp_path}/r/plain/seed3#live-actor",
+        *args,
+        cwd=tmp_path,
+    )
     assert refused.returncode == 1
     assert error_lines(refused)[-1].endswith("has no averaged actor (actor_ema) to leave out")
 

@@ -16,9 +16,14 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 def test_cartpole_reaches_475_with_the_shipped_ppo_entry(tmp_path):
     config = ExperimentConfig.resolve(
-        "ppo", "CartPole-v1", eval_freq=5_000, eval_episodes=10, save_freq=0, vec_env="dummy",
+        "ppo",
+        "CartPole-v1",
+        eval_freq=5_000,
+        eval_episodes=10,
+        save_freq=0,
+        vec_env="dummy",
         device="cpu",
-    )  # fmt: skip
+    )
     assert config.n_envs == 8 and config.hyperparams["learning_rate"] == "lin_0.001"
     stop = StopTrainingOnRewardThreshold(reward_threshold=475, verbose=0)
     experiment = Experiment.create(
@@ -52,9 +57,17 @@ def test_a_bad_schedule_is_one_line(value):
 
 def test_train_rejects_a_bad_schedule_in_one_line(tmp_path):
     result = run_script(
-        "train.py", "--algo", "ppo", "--env", "CartPole-v1", "--hyperparams",
-        "learning_rate=cos_0.1", "-f", str(tmp_path), cwd=tmp_path,
-    )  # fmt: skip
+        "train.py",
+        "--algo",
+        "ppo",
+        "--env",
+        "CartPole-v1",
+        "--hyperparams",
+        "learning_rate=cos_0.1",
+        "-f",
+        str(tmp_path),
+        cwd=tmp_path,
+    )
     assert result.returncode == 2
     assert error_lines(result) == [
         "train.py: error: learning_rate: expected a number or lin_<number> (linear decay), "

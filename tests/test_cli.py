@@ -19,9 +19,19 @@ from tests.scripts import REPO, error_lines, run_main
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 PENDULUM = [
-    "--env", "Pendulum-v1", "-n", "300", "--eval-freq", "0", "--save-freq", "150",
-    "--hyperparams", "learning_starts=50", "batch_size=16", "policy_kwargs={net_arch: [8]}",
-]  # fmt: skip
+    "--env",
+    "Pendulum-v1",
+    "-n",
+    "300",
+    "--eval-freq",
+    "0",
+    "--save-freq",
+    "150",
+    "--hyperparams",
+    "learning_starts=50",
+    "batch_size=16",
+    "policy_kwargs={net_arch: [8]}",
+]
 
 
 def test_command_txt_records_the_argv_given_to_main_not_sys_argv(tmp_path, monkeypatch):
@@ -60,8 +70,9 @@ def test_plotting_leaves_the_users_matplotlib_backend_alone(tmp_path):
         "ep_lengths=np.ones((2, 1))); plot_learning_curve('e.npz', 'curve.png'); "
         "print(matplotlib.get_backend())"
     )
-    shown = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True,
-                           text=True, timeout=120)  # fmt: skip
+    shown = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
     assert shown.returncode == 0, shown.stderr
     assert shown.stdout.split()[-1] == "svg"
     assert (tmp_path / "curve.png").read_bytes()[:4] == b"\x89PNG"
@@ -95,8 +106,9 @@ def test_training_uses_one_torch_thread_unless_told(tmp_path, monkeypatch):
 def _with_torch_hidden(script: str, *args: str) -> subprocess.CompletedProcess:
     hide = f"import sys, runpy\nsys.modules['torch'] = None\nsys.argv = {[script, *args]!r}\n"
     run = hide + f"runpy.run_path({script!r}, run_name='__main__')"
-    return subprocess.run([sys.executable, "-c", run], capture_output=True, text=True,
-                          timeout=120, cwd=REPO)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-c", run], capture_output=True, text=True, timeout=120, cwd=REPO
+    )
 
 
 def test_flags_are_parsed_before_torch_is_imported():

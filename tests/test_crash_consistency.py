@@ -25,16 +25,26 @@ from tests.scripts import REPO, error_lines, run_script
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 NORMALIZED_SAC = {
-    "learning_starts": 50, "batch_size": 16, "buffer_size": 2000, "normalize": True,
+    "learning_starts": 50,
+    "batch_size": 16,
+    "buffer_size": 2000,
+    "normalize": True,
     "policy_kwargs": {"net_arch": [8]},
-}  # fmt: skip
+}
 
 
 def pendulum_run(tmp_path, n_timesteps=300) -> RunFolder:
     config = ExperimentConfig.resolve(
-        "sac", "Pendulum-v1", hyperparams=NORMALIZED_SAC, n_timesteps=n_timesteps,
-        eval_freq=100, eval_episodes=1, save_freq=100, vec_env="dummy", device="cpu",
-    )  # fmt: skip
+        "sac",
+        "Pendulum-v1",
+        hyperparams=NORMALIZED_SAC,
+        n_timesteps=n_timesteps,
+        eval_freq=100,
+        eval_episodes=1,
+        save_freq=100,
+        vec_env="dummy",
+        device="cpu",
+    )
     result = Experiment.create(config, tmp_path / "logs").run()
     assert result.status == "completed"
     return result.run
@@ -79,8 +89,16 @@ def test_a_zip_alone_without_statistics_is_played_raw_and_evaluate_says_so(tmp_p
                 target.writestr(name, source.read(name))
     loaded = load_policy(alone, device="cpu")
     assert loaded.normalizer is None and loaded.normalization_unknown
-    played = run_script("evaluate.py", "--model", str(alone), "--env", "Pendulum-v1",
-                        "--episodes", "1", cwd=tmp_path)  # fmt: skip
+    played = run_script(
+        "evaluate.py",
+        "--model",
+        str(alone),
+        "--env",
+        "Pendulum-v1",
+        "--episodes",
+        "1",
+        cwd=tmp_path,
+    )
     assert played.returncode == 0, played.stderr
     assert (
         f"policy: {alone} (sac, raw observations: no VecNormalize statistics in the zip and "
@@ -93,8 +111,9 @@ def test_a_zip_alone_without_statistics_is_played_raw_and_evaluate_says_so(tmp_p
 
 def test_algo_that_contradicts_the_zip_is_one_line(tmp_path):
     shipped = REPO / "pretrained" / "ppo" / "MinitaurBulletEnv-v0_1" / "MinitaurBulletEnv-v0.zip"
-    played = run_script("evaluate.py", "--model", str(shipped), "--algo", "a2c",
-                        "--episodes", "1", cwd=tmp_path)  # fmt: skip
+    played = run_script(
+        "evaluate.py", "--model", str(shipped), "--algo", "a2c", "--episodes", "1", cwd=tmp_path
+    )
     assert error_lines(played) == [
         f"evaluate.py: error: {shipped} holds a ppo model, not a2c; drop --algo"
     ]
@@ -122,9 +141,23 @@ sys.exit(train.main())
 def test_a_kill_while_a_new_best_model_is_written_keeps_the_previous_one(tmp_path):
     launcher = tmp_path / "launcher.py"
     launcher.write_text(KILL_AT_SECOND_PROMOTION.format(repo=str(REPO)))
-    args = ["--env", "Pendulum-v1", "-n", "600", "--eval-freq", "100", "--eval-episodes", "1",
-            "--save-freq", "100", "--hyperparams", "learning_starts=50", "batch_size=16",
-            "normalize=true", "policy_kwargs={net_arch: [8]}"]  # fmt: skip
+    args = [
+        "--env",
+        "Pendulum-v1",
+        "-n",
+        "600",
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "1",
+        "--save-freq",
+        "100",
+        "--hyperparams",
+        "learning_starts=50",
+        "batch_size=16",
+        "normalize=true",
+        "policy_kwargs={net_arch: [8]}",
+    ]
     killed = run_script(str(launcher), *args, cwd=tmp_path)
     assert killed.returncode == 9
     run = RunFolder(tmp_path / "logs" / "sac" / "Pendulum-v1_1")
@@ -183,16 +216,20 @@ def test_two_processes_never_train_one_run_and_a_killed_one_leaves_no_lock(tmp_p
         "from pathlib import Path\nfrom minitaur_env.training.files import exclusive\n"
         "with exclusive(Path(sys.argv[1]), 'x'):\n    os._exit(9)\n"
     )
-    killed = subprocess.run([sys.executable, "-c", holder, str(run.lock_file), str(REPO)],
-                            timeout=120)  # fmt: skip
+    killed = subprocess.run(
+        [sys.executable, "-c", holder, str(run.lock_file), str(REPO)], timeout=120
+    )
     assert killed.returncode == 9
     assert Experiment.resume(run.path, n_timesteps=300).run().status == "completed"
 
 
 SOAK_STEPS = 3000
 if "ShortPendulum-v0" not in gym.registry:  # at import: the soak's children need it too
-    gym.register("ShortPendulum-v0", max_episode_steps=25,
-                 entry_point="gymnasium.envs.classic_control:PendulumEnv")  # fmt: skip
+    gym.register(
+        "ShortPendulum-v0",
+        max_episode_steps=25,
+        entry_point="gymnasium.envs.classic_control:PendulumEnv",
+    )
 
 
 def _resume_in_child(run_path: str) -> None:
@@ -234,9 +271,16 @@ def _train_until_killed_after_checkpoint(logs: str, step: int) -> None:
 def _train_short_run(logs: str) -> None:
     """A 300-step run evaluated and checkpointed every 100 steps (in a child: exits)."""
     config = ExperimentConfig.resolve(
-        "sac", "ShortPendulum-v0", hyperparams=NORMALIZED_SAC, n_timesteps=300,
-        eval_freq=100, eval_episodes=1, save_freq=100, vec_env="dummy", device="cpu",
-    )  # fmt: skip
+        "sac",
+        "ShortPendulum-v0",
+        hyperparams=NORMALIZED_SAC,
+        n_timesteps=300,
+        eval_freq=100,
+        eval_episodes=1,
+        save_freq=100,
+        vec_env="dummy",
+        device="cpu",
+    )
     Experiment.create(config, logs, verbose=0, progress="none").run()
     os._exit(0)
 
@@ -312,9 +356,16 @@ def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path)
     then resume, 20 times. Children fork from a forkserver that imported the package
     once, so a cycle costs a fraction of a second rather than an interpreter start."""
     config = ExperimentConfig.resolve(
-        "sac", "ShortPendulum-v0", hyperparams=NORMALIZED_SAC, n_timesteps=60,
-        eval_freq=100, eval_episodes=1, save_freq=40, vec_env="dummy", device="cpu",
-    )  # fmt: skip
+        "sac",
+        "ShortPendulum-v0",
+        hyperparams=NORMALIZED_SAC,
+        n_timesteps=60,
+        eval_freq=100,
+        eval_episodes=1,
+        save_freq=40,
+        vec_env="dummy",
+        device="cpu",
+    )
     run = Experiment.create(config, tmp_path / "logs", verbose=0).run().run
     context = preloaded_forkserver()
     rng = random.Random(0)

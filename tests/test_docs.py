@@ -28,10 +28,23 @@ NOTEBOOKS = sorted((DOCS / "tutorials").glob("*.ipynb"))
 
 def sphinx(source: Path, out: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "sphinx", "-E", "-W", "--keep-going", "-q", "-b", "html",
-         str(source), str(out)],
-        capture_output=True, text=True, timeout=900,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "sphinx",
+            "-E",
+            "-W",
+            "--keep-going",
+            "-q",
+            "-b",
+            "html",
+            str(source),
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
 
 
 def test_the_site_builds_with_warnings_as_errors(tmp_path):
@@ -40,14 +53,23 @@ def test_the_site_builds_with_warnings_as_errors(tmp_path):
     assert built.returncode == 0, built.stderr[-3000:]
     api = (tmp_path / "html" / "api.html").read_text()
     for name in (
-        "minitaur_env.MinitaurBulletEnv", "minitaur_env.Realism", "minitaur_env.DynamicsRanges",
+        "minitaur_env.MinitaurBulletEnv",
+        "minitaur_env.Realism",
+        "minitaur_env.DynamicsRanges",
         "minitaur_env.training.config.ExperimentConfig",
         "minitaur_env.training.experiment.Experiment",
-        "minitaur_env.training.run_folder.RunFolder", "minitaur_env.onnx_policy.OnnxPolicy",
-    ):  # fmt: skip
+        "minitaur_env.training.run_folder.RunFolder",
+        "minitaur_env.onnx_policy.OnnxPolicy",
+    ):
         assert f'id="{name}"' in api, f"{name} is missing from the API reference"
-    for page in ("environment", "training", "results", "tutorials/sac_minitaur",
-                 "tutorials/ppo_cartpole", "changelog"):  # fmt: skip
+    for page in (
+        "environment",
+        "training",
+        "results",
+        "tutorials/sac_minitaur",
+        "tutorials/ppo_cartpole",
+        "changelog",
+    ):
         assert (tmp_path / "html" / f"{page}.html").is_file(), page
 
 
@@ -132,16 +154,32 @@ def test_the_wheel_installs_into_a_fresh_environment_and_its_minitaur_command_wo
     # Build from a copy: building in place would leave build/ and egg-info in the checkout.
     source = tmp_path / "source"
     shutil.copytree(
-        REPO, source,
-        ignore=shutil.ignore_patterns(".git", ".venv", "logs", "sweeps", "benchmarks",
-                                      "pretrained", "videos", "tests", "docs", "build", "dist",
-                                      "*.egg-info", "__pycache__", ".*_cache"),
-    )  # fmt: skip
+        REPO,
+        source,
+        ignore=shutil.ignore_patterns(
+            ".git",
+            ".venv",
+            "logs",
+            "sweeps",
+            "benchmarks",
+            "pretrained",
+            "videos",
+            "tests",
+            "docs",
+            "build",
+            "dist",
+            "*.egg-info",
+            "__pycache__",
+            ".*_cache",
+        ),
+    )
     dist = tmp_path / "dist"
     built = subprocess.run(
         [sys.executable, "-m", "build", "--no-isolation", "--outdir", str(dist), str(source)],
-        capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert built.returncode == 0, built.stderr[-2000:]
     files = sorted(p.name for p in dist.iterdir())
     import minitaur_env
@@ -150,8 +188,10 @@ def test_the_wheel_installs_into_a_fresh_environment_and_its_minitaur_command_wo
     assert files == [f"minitaur_env-{version}-py3-none-any.whl", f"minitaur_env-{version}.tar.gz"]
     checked = subprocess.run(
         [sys.executable, "-m", "twine", "check", "--strict", *map(str, dist.iterdir())],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert checked.returncode == 0, checked.stdout + checked.stderr
 
     # A fresh environment that sees this one's dependencies (gymnasium, pybullet, SB3) but
@@ -161,15 +201,29 @@ def test_the_wheel_installs_into_a_fresh_environment_and_its_minitaur_command_wo
     python = venv / "bin" / "python"
     fresh_site = subprocess.run(
         [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-        capture_output=True, text=True, check=True,
-    ).stdout.strip()  # fmt: skip
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
     Path(fresh_site, "dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     wheel = next(dist.glob("*.whl"))
     installed = subprocess.run(
-        [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps",
-         "--no-index", "-q", str(wheel)],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "--python",
+            str(python),
+            "install",
+            "--no-deps",
+            "--no-index",
+            "-q",
+            str(wheel),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert installed.returncode == 0, installed.stderr
     probe = (
         "import gymnasium as gym, minitaur_env\n"
@@ -183,8 +237,14 @@ def test_the_wheel_installs_into_a_fresh_environment_and_its_minitaur_command_wo
         "env = gym.make('MinitaurBulletEnv-v0'); print(env.reset(seed=0)[0].shape)\n"
     )
     clean = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    ran = subprocess.run([str(python), "-c", probe], cwd=tmp_path, capture_output=True,
-                         text=True, timeout=300, env=clean)  # fmt: skip
+    ran = subprocess.run(
+        [str(python), "-c", probe],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=clean,
+    )
     assert ran.returncode == 0, ran.stderr[-2000:]
     where, shown_version, ymls, n_timesteps, shape = ran.stdout.strip().splitlines()[-5:]
     assert where.startswith(fresh_site)  # the wheel's copy, not the checkout

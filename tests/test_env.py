@@ -112,12 +112,16 @@ def test_observations_are_float32_and_inside_the_space_under_violent_actions(env
     "kwargs",
     [
         {"observation_noise_stdev": 0.01},
-        {"observation_noise_stdev": 0.01, "observation": "imu", "imu_noise_stdev": 0.05,
-         "imu_bias": 0.05},
+        {
+            "observation_noise_stdev": 0.01,
+            "observation": "imu",
+            "imu_noise_stdev": 0.05,
+            "imu_bias": 0.05,
+        },
         {"observation_noise_stdev": 0.3},
     ],
     ids=["classic-noise", "imu-noise-and-bias", "heavy-noise"],
-)  # fmt: skip
+)
 def test_noisy_observations_saturate_at_the_space_bounds(kwargs):
     # The classic env added noise after its bounds: a torque at its limit plus noise left
     # the space (165 of 300 observations at 0.01). A noisy reading now saturates there.
@@ -256,9 +260,17 @@ def test_overheat_protection_switches_a_stalled_motor_off(protection):
     # Pin motor 0's link to the world: commanded away from its angle, it stalls at full torque.
     position, orientation = pybullet.getLinkState(body, joint, physicsClientId=client)[:2]
     pin = pybullet.createConstraint(
-        body, joint, -1, -1, pybullet.JOINT_FIXED, [0, 0, 0], [0, 0, 0], position,
-        childFrameOrientation=orientation, physicsClientId=client,
-    )  # fmt: skip
+        body,
+        joint,
+        -1,
+        -1,
+        pybullet.JOINT_FIXED,
+        [0, 0, 0],
+        [0, 0, 0],
+        position,
+        childFrameOrientation=orientation,
+        physicsClientId=client,
+    )
     action = np.zeros(8, np.float32)
     action[[0, 4]] = 1.0
     enabled = []
@@ -542,8 +554,16 @@ def test_on_rack_holds_the_base_in_the_air():
     env.close()
 
 
-TRAINING_MODULES = ("stable_baselines3", "sb3_contrib", "torch", "yaml", "matplotlib",
-                    "imageio", "tqdm", "rich")  # fmt: skip
+TRAINING_MODULES = (
+    "stable_baselines3",
+    "sb3_contrib",
+    "torch",
+    "yaml",
+    "matplotlib",
+    "imageio",
+    "tqdm",
+    "rich",
+)
 WITHOUT_TRAINING = (
     "import sys\n"
     f"for name in {TRAINING_MODULES!r}:\n"
@@ -561,15 +581,20 @@ def test_the_env_alone_needs_neither_sb3_nor_torch_and_the_scripts_say_what_is_m
 
     play = "import gymnasium as gym, minitaur_env\nenv = gym.make('MinitaurBulletEnv-v0')\n"
     play += "obs, _ = env.reset(seed=0)\nprint(obs.shape, env.step(env.action_space.sample())[1])"
-    result = subprocess.run([sys.executable, "-c", WITHOUT_TRAINING + play],
-                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-c", WITHOUT_TRAINING + play], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("(28,) ")
     for script in ("train.py", "evaluate.py"):
         run = f"import runpy\nsys.argv = ['{script}']\nrunpy.run_path('{REPO / script}', "
         run += "run_name='__main__')"
-        result = subprocess.run([sys.executable, "-c", WITHOUT_TRAINING + run],
-                                capture_output=True, text=True, timeout=120)  # fmt: skip
+        result = subprocess.run(
+            [sys.executable, "-c", WITHOUT_TRAINING + run],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         (line,) = error_lines(result)
         assert line.startswith(f"{script}: error: ") and "'minitaur-env[train]'" in line
         assert result.returncode == 1

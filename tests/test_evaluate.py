@@ -30,9 +30,21 @@ SHORT = ["--env-kwargs", "max_episode_steps=30"]
 def workdir(tmp_path_factory):
     root = tmp_path_factory.mktemp("evaluate")
     result = run_script(
-        "train.py", "-n", "200", "--hyperparams", "learning_starts=50", "batch_size=32",
-        "--eval-freq", "100", "--eval-episodes", "1", "--save-freq", "100", *TINY, cwd=root,
-    )  # fmt: skip
+        "train.py",
+        "-n",
+        "200",
+        "--hyperparams",
+        "learning_starts=50",
+        "batch_size=32",
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "1",
+        "--save-freq",
+        "100",
+        *TINY,
+        cwd=root,
+    )
     assert result.returncode == 0, result.stderr
     return root
 
@@ -44,9 +56,16 @@ def best_model(workdir):
 
 def test_statistics_table_and_json(workdir, best_model):
     result = run_script(
-        "evaluate.py", "--model", str(best_model), "--episodes", "3", "--json", "out/stats.json",
-        *SHORT, cwd=workdir,
-    )  # fmt: skip
+        "evaluate.py",
+        "--model",
+        str(best_model),
+        "--episodes",
+        "3",
+        "--json",
+        "out/stats.json",
+        *SHORT,
+        cwd=workdir,
+    )
     assert result.returncode == 0, result.stderr
     for label in ("return", "episode length", "forward distance (m)", "speed (m/s)", "falls"):
         assert label in result.stdout
@@ -90,9 +109,19 @@ def test_same_seed_same_statistics_and_stochastic_mode(workdir, best_model):
 )
 def test_zoo_style_model_selection(workdir, selection, expected):
     result = run_main(
-        evaluate.main, "-f", "logs", "--algo", "sac", "--env", "MinitaurBulletEnv-v0",
-        *selection, "--episodes", "1", *SHORT, cwd=workdir,
-    )  # fmt: skip
+        evaluate.main,
+        "-f",
+        "logs",
+        "--algo",
+        "sac",
+        "--env",
+        "MinitaurBulletEnv-v0",
+        *selection,
+        "--episodes",
+        "1",
+        *SHORT,
+        cwd=workdir,
+    )
     assert result.returncode == 0, result.stderr
     assert f"{expected} (sac, observations normalized)" in result.stdout.splitlines()[0]
 
@@ -101,11 +130,28 @@ def test_zoo_style_model_selection(workdir, selection, expected):
 def test_the_zoo_plays_our_run_folders(workdir, load_best):
     needs("rl_zoo3")
     result = subprocess.run(
-        [sys.executable, "-m", "rl_zoo3.enjoy", "-f", "logs", "--algo", "sac",
-         "--env", "MinitaurBulletEnv-v0", "--gym-packages", "minitaur_env", "--no-render",
-         "-n", "80", *(["--load-best"] if load_best else [])],
-        cwd=workdir, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "rl_zoo3.enjoy",
+            "-f",
+            "logs",
+            "--algo",
+            "sac",
+            "--env",
+            "MinitaurBulletEnv-v0",
+            "--gym-packages",
+            "minitaur_env",
+            "--no-render",
+            "-n",
+            "80",
+            *(["--load-best"] if load_best else []),
+        ],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     model = "best_model.zip" if load_best else "MinitaurBulletEnv-v0.zip"
     assert f"Loading logs/sac/MinitaurBulletEnv-v0_1/{model}" in result.stdout
@@ -117,16 +163,34 @@ def test_the_zoo_plays_our_run_folders(workdir, load_best):
 def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
     needs("rl_zoo3")
     result = subprocess.run(
-        [sys.executable, "-m", "minitaur_env.zoo", "record_video", "-f", "logs",
-         "--algo", "sac", "--env", "MinitaurBulletEnv-v0", "-n", "20", "-o", "zoo-videos"],
-        cwd=workdir, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "minitaur_env.zoo",
+            "record_video",
+            "-f",
+            "logs",
+            "--algo",
+            "sac",
+            "--env",
+            "MinitaurBulletEnv-v0",
+            "-n",
+            "20",
+            "-o",
+            "zoo-videos",
+        ],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     (video,) = (workdir / "zoo-videos").glob("*.mp4")
     frames, _ = read_video(video)
     assert len(frames) >= 20 and frames.std() > 10
-    unknown = subprocess.run([sys.executable, "-m", "minitaur_env.zoo", "no_such_script"],
-                             capture_output=True, text=True)  # fmt: skip
+    unknown = subprocess.run(
+        [sys.executable, "-m", "minitaur_env.zoo", "no_such_script"], capture_output=True, text=True
+    )
     assert error_lines(unknown.stderr) == [
         "python -m minitaur_env.zoo: error: rl_zoo3 has no script 'no_such_script'"
     ]
@@ -135,16 +199,36 @@ def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
 def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, best_model):
     hub = needs("huggingface_hub")
     result = subprocess.run(
-        [sys.executable, "-m", "minitaur_env.package", str(best_model.parent), "-o", "hub",
-         "--episodes", "2", "--video-steps", "20"],
-        cwd=workdir, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "minitaur_env.package",
+            str(best_model.parent),
+            "-o",
+            "hub",
+            "--episodes",
+            "2",
+            "--video-steps",
+            "20",
+        ],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     folder = workdir / "hub" / "sac-MinitaurBulletEnv-v0"
     assert sorted(p.name for p in folder.iterdir()) == [
-        "README.md", "config.yml", "env_kwargs.yml", "policy.onnx", "replay.mp4",
-        "results.json", "sac-MinitaurBulletEnv-v0.zip", "vec_normalize.json", "vec_normalize.pkl",
-    ]  # fmt: skip
+        "README.md",
+        "config.yml",
+        "env_kwargs.yml",
+        "policy.onnx",
+        "replay.mp4",
+        "results.json",
+        "sac-MinitaurBulletEnv-v0.zip",
+        "vec_normalize.json",
+        "vec_normalize.pkl",
+    ]
     final_model = best_model.parent / "MinitaurBulletEnv-v0.zip"  # a run folder's model
     assert (folder / "sac-MinitaurBulletEnv-v0.zip").read_bytes() == final_model.read_bytes()
     results = json.loads((folder / "results.json").read_text())
@@ -163,11 +247,22 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
     frames, _ = read_video(folder / "replay.mp4")
     assert len(frames) == 5 and frames.std() > 10  # 20 steps at 100 Hz, 25 fps: every 4th
     # The packaged zip plays with its statistics, found under the Hub's file name.
-    played = run_script("evaluate.py", "--model", str(folder / "sac-MinitaurBulletEnv-v0.zip"),
-                        "--episodes", "1", *SHORT, cwd=workdir)  # fmt: skip
+    played = run_script(
+        "evaluate.py",
+        "--model",
+        str(folder / "sac-MinitaurBulletEnv-v0.zip"),
+        "--episodes",
+        "1",
+        *SHORT,
+        cwd=workdir,
+    )
     assert played.returncode == 0 and "observations normalized" in played.stdout
-    missing = subprocess.run([sys.executable, "-m", "minitaur_env.package", "no/such/run"],
-                             cwd=workdir, capture_output=True, text=True)  # fmt: skip
+    missing = subprocess.run(
+        [sys.executable, "-m", "minitaur_env.package", "no/such/run"],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+    )
     assert error_lines(missing.stderr) == [
         "python -m minitaur_env.package: error: model file not found: no/such/run"
     ]
@@ -175,10 +270,25 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
 
 def test_render_video_writes_mp4_and_gif(workdir, best_model):
     result = run_script(
-        "evaluate.py", "--model", str(best_model), "--episodes", "0", "--render-video",
-        "-o", "clips/run.mp4", "--video-episodes", "2", "--width", "160", "--height", "120",
-        "--gif", "--env-kwargs", "max_episode_steps=20", cwd=workdir,
-    )  # fmt: skip
+        "evaluate.py",
+        "--model",
+        str(best_model),
+        "--episodes",
+        "0",
+        "--render-video",
+        "-o",
+        "clips/run.mp4",
+        "--video-episodes",
+        "2",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--gif",
+        "--env-kwargs",
+        "max_episode_steps=20",
+        cwd=workdir,
+    )
     assert result.returncode == 0, result.stderr
     frames, fps = read_video(workdir / "clips" / "run.mp4")
     assert fps == 50  # every 2nd control step of 100 Hz: real time
@@ -201,16 +311,43 @@ def limited_file_size(limit_bytes: int) -> Callable[[], None]:
 
 def test_a_video_that_cannot_be_written_whole_is_one_line_and_no_file(workdir, best_model):
     clips = workdir / "full-disk"
-    args = [sys.executable, str(REPO / "evaluate.py"), "--model", str(best_model),
-            "--episodes", "0", "--render-video", "-o", str(clips / "run.mp4"),
-            "--video-episodes", "1", "--width", "64", "--height", "48",
-            "--env-kwargs", "max_episode_steps=200"]  # fmt: skip
-    played = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=300,
-                            preexec_fn=limited_file_size(4_000))  # fmt: skip
-    assert played.returncode == 1 and error_lines(played) == [
-        line for line in error_lines(played)
-        if line.startswith(f"evaluate.py: error: {clips / 'run.mp4'}: the video")
-    ] and error_lines(played), played.stderr  # fmt: skip
+    args = [
+        sys.executable,
+        str(REPO / "evaluate.py"),
+        "--model",
+        str(best_model),
+        "--episodes",
+        "0",
+        "--render-video",
+        "-o",
+        str(clips / "run.mp4"),
+        "--video-episodes",
+        "1",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--env-kwargs",
+        "max_episode_steps=200",
+    ]
+    played = subprocess.run(
+        args,
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        preexec_fn=limited_file_size(4_000),
+    )
+    assert (
+        played.returncode == 1
+        and error_lines(played)
+        == [
+            line
+            for line in error_lines(played)
+            if line.startswith(f"evaluate.py: error: {clips / 'run.mp4'}: the video")
+        ]
+        and error_lines(played)
+    ), played.stderr
     assert list(clips.iterdir()) == []  # neither a truncated mp4 nor a temporary file
     # control: the same command with room on the disk
     written = subprocess.run(args, cwd=workdir, capture_output=True, text=True, timeout=300)
@@ -235,9 +372,21 @@ def test_a_quietly_truncated_video_replaces_nothing(tmp_path, monkeypatch):
 
 def test_default_video_name_goes_to_videos(workdir, best_model):
     result = run_script(
-        "evaluate.py", "--model", str(best_model), "--episodes", "0", "--render-video",
-        "--video-episodes", "1", "--width", "64", "--height", "48", *SHORT, cwd=workdir,
-    )  # fmt: skip
+        "evaluate.py",
+        "--model",
+        str(best_model),
+        "--episodes",
+        "0",
+        "--render-video",
+        "--video-episodes",
+        "1",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        *SHORT,
+        cwd=workdir,
+    )
     assert result.returncode == 0, result.stderr
     videos = list((workdir / "videos").glob("MinitaurBulletEnv-v0_sac_*.mp4"))
     assert len(videos) == 1
@@ -245,10 +394,19 @@ def test_default_video_name_goes_to_videos(workdir, best_model):
 
 def test_gui_mode_plays_episodes(workdir, best_model, display):
     result = run_script(
-        "evaluate.py", "--model", str(best_model), "--episodes", "0", "--gui",
-        "--video-episodes", "2", "--env-kwargs", "max_episode_steps=10", cwd=workdir,
+        "evaluate.py",
+        "--model",
+        str(best_model),
+        "--episodes",
+        "0",
+        "--gui",
+        "--video-episodes",
+        "2",
+        "--env-kwargs",
+        "max_episode_steps=10",
+        cwd=workdir,
         keep_display=True,
-    )  # fmt: skip
+    )
     assert result.returncode == 0, result.stderr
     assert "gui: 2 episodes in the PyBullet window, returns " in result.stdout
 
@@ -327,8 +485,18 @@ def test_exp_id_picks_that_run_of_the_log_folder(tmp_path):
     shipped = Path(__file__).resolve().parents[1] / "pretrained" / "ppo" / "MinitaurBulletEnv-v0_1"
     for number in (1, 2):
         shutil.copytree(shipped, tmp_path / "logs" / "ppo" / f"MinitaurBulletEnv-v0_{number}")
-    common = ["-f", "logs", "--algo", "ppo", "--env", "MinitaurBulletEnv-v0", "--episodes", "1",
-              "--env-kwargs", "max_episode_steps=20"]  # fmt: skip
+    common = [
+        "-f",
+        "logs",
+        "--algo",
+        "ppo",
+        "--env",
+        "MinitaurBulletEnv-v0",
+        "--episodes",
+        "1",
+        "--env-kwargs",
+        "max_episode_steps=20",
+    ]
     for number in (1, 2):
         played = run_script("evaluate.py", *common, "--exp-id", str(number), cwd=tmp_path)
         assert played.returncode == 0, played.stderr
@@ -353,17 +521,36 @@ def test_load_last_checkpoint_skips_a_torn_newest_one(tmp_path):
         saved = run / "checkpoints" / f"rl_model_vecnormalize_100_steps{suffix}"
         shutil.copyfile(shipped / "MinitaurBulletEnv-v0" / f"vecnormalize{suffix}", saved)
     (run / "checkpoints" / "rl_model_200_steps.zip").write_bytes(b"PK\x03\x04 torn by a kill")
-    played = run_script("evaluate.py", "-f", "logs", "--algo", "ppo", "--env",
-                        "MinitaurBulletEnv-v0", "--load-last-checkpoint", "--episodes", "1",
-                        "--env-kwargs", "max_episode_steps=20", cwd=tmp_path)  # fmt: skip
+    played = run_script(
+        "evaluate.py",
+        "-f",
+        "logs",
+        "--algo",
+        "ppo",
+        "--env",
+        "MinitaurBulletEnv-v0",
+        "--load-last-checkpoint",
+        "--episodes",
+        "1",
+        "--env-kwargs",
+        "max_episode_steps=20",
+        cwd=tmp_path,
+    )
     assert played.returncode == 0, played.stderr
     assert "rl_model_100_steps.zip" in played.stdout
     # With every checkpoint torn there is nothing to play: one line, not a traceback.
     (run / "checkpoints/rl_model_100_steps.zip").write_bytes(b"PK\x03\x04 torn too")
     refused = run_script(
-        "evaluate.py", "-f", "logs", "--algo", "ppo", "--env", "MinitaurBulletEnv-v0",
-        "--load-last-checkpoint", cwd=tmp_path,
-    )  # fmt: skip
+        "evaluate.py",
+        "-f",
+        "logs",
+        "--algo",
+        "ppo",
+        "--env",
+        "MinitaurBulletEnv-v0",
+        "--load-last-checkpoint",
+        cwd=tmp_path,
+    )
     assert refused.returncode == 2
     assert error_lines(refused.stderr) == [
         f"evaluate.py: error: {Path('logs/ppo/MinitaurBulletEnv-v0_1')} has no readable checkpoint"

@@ -33,9 +33,13 @@ from tests.scripts import REPO, needs
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 SMALL_SAC = {
-    "learning_starts": 20, "buffer_size": 2000, "batch_size": 16, "train_freq": 1,
-    "gradient_steps": 1, "policy_kwargs": {"net_arch": [16]},
-}  # fmt: skip
+    "learning_starts": 20,
+    "buffer_size": 2000,
+    "batch_size": 16,
+    "train_freq": 1,
+    "gradient_steps": 1,
+    "policy_kwargs": {"net_arch": [16]},
+}
 
 
 class RaisesValueErrorAt(gym.Wrapper):
@@ -68,9 +72,10 @@ for _name, _cls in (("RaisesValueError-v0", RaisesValueErrorAt), ("NanObs-v0", N
         gym.register(_name, entry_point=_cls, max_episode_steps=200)
 if "ShortPendulum-v0" not in gym.registry:
     gym.register(
-        "ShortPendulum-v0", entry_point="gymnasium.envs.classic_control:PendulumEnv",
+        "ShortPendulum-v0",
+        entry_point="gymnasium.envs.classic_control:PendulumEnv",
         max_episode_steps=25,
-    )  # fmt: skip
+    )
 
 
 def pendulum(tmp_path, callbacks=(), **settings) -> Experiment:
@@ -118,8 +123,18 @@ def test_resume_extends_a_run_to_n_steps_and_keeps_its_checkpoints_aligned(tmp_p
 def test_resume_forgets_what_the_killed_session_logged_after_its_checkpoint(tmp_path):
     # A kill after step 260 whose newest readable checkpoint is 220: the episodes and
     # evaluations of steps 221-260 belong to a branch the resume does not continue.
-    run = pendulum(tmp_path, env="ShortPendulum-v0", n_timesteps=260, save_freq=110,
-                   eval_freq=50, eval_episodes=1).run().run  # fmt: skip
+    run = (
+        pendulum(
+            tmp_path,
+            env="ShortPendulum-v0",
+            n_timesteps=260,
+            save_freq=110,
+            eval_freq=50,
+            eval_episodes=1,
+        )
+        .run()
+        .run
+    )
     run.checkpoint(260).unlink()
     result = Experiment.resume(run.path, n_timesteps=340, verbose=0).run()
     assert result.status == "completed"
@@ -304,9 +319,17 @@ def test_the_seed_decides_the_run_on_every_backend(tmp_path, algo, backend):
 
     def trained(seed):
         config = ExperimentConfig.resolve(
-            algo, "Pendulum-v1", hyperparams=SMALL_SAC, n_timesteps=120, backend=backend,
-            seed=seed, eval_freq=0, save_freq=0, vec_env="dummy", device="cpu",
-        )  # fmt: skip
+            algo,
+            "Pendulum-v1",
+            hyperparams=SMALL_SAC,
+            n_timesteps=120,
+            backend=backend,
+            seed=seed,
+            eval_freq=0,
+            save_freq=0,
+            vec_env="dummy",
+            device="cpu",
+        )
         experiment = Experiment.create(config, tmp_path, verbose=0)
         experiment.run()
         return _policy_weights(experiment.model), experiment.model.replay_buffer.actions[:100]
@@ -378,9 +401,15 @@ def test_a_trained_agent_that_does_not_fit_is_one_line(tmp_path):
         pendulum(tmp_path, hyperparams={"normalize": True}, trained_agent=str(run.zoo_model)).run()
     with pytest.raises(UsageError, match=r"is a sb3 sac model .* pass --algo sac --backend sb3"):
         ExperimentConfig.resolve(
-            "td3", "Pendulum-v1", n_timesteps=50, trained_agent=str(run.zoo_model),
-            eval_freq=0, save_freq=0, vec_env="dummy", device="cpu",
-        )  # fmt: skip
+            "td3",
+            "Pendulum-v1",
+            n_timesteps=50,
+            trained_agent=str(run.zoo_model),
+            eval_freq=0,
+            save_freq=0,
+            vec_env="dummy",
+            device="cpu",
+        )
     with pytest.raises(UsageError, match=r"does not fit MountainCarContinuous-v0: .*space"):
         pendulum(tmp_path, env="MountainCarContinuous-v0", trained_agent=str(run.zoo_model)).run()
 
@@ -476,11 +505,16 @@ def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_
 ):
     def pushed(name: str, callback: BaseCallback, **settings) -> Experiment:
         return pendulum(
-            tmp_path / name, env="MinitaurBulletEnv-v0", n_envs=2, eval_freq=100,
-            eval_episodes=1, env_kwargs={"realism": {"pushes": True}, "max_episode_steps": 30},
+            tmp_path / name,
+            env="MinitaurBulletEnv-v0",
+            n_envs=2,
+            eval_freq=100,
+            eval_episodes=1,
+            env_kwargs={"realism": {"pushes": True}, "max_episode_steps": 30},
             hyperparams={"push_curriculum": {"start": 0.2, "full_at": 0.5}},
-            callbacks=[callback], **settings,
-        )  # fmt: skip
+            callbacks=[callback],
+            **settings,
+        )
 
     whole = RecordsPushScale()
     experiment = pushed("whole", whole)
@@ -494,9 +528,11 @@ def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_
 
     control = RecordsPushScale()
     pendulum(
-        tmp_path / "control", env="MinitaurBulletEnv-v0", env_kwargs={"realism": {"pushes": True},
-        "max_episode_steps": 30}, callbacks=[control],
-    ).run()  # fmt: skip
+        tmp_path / "control",
+        env="MinitaurBulletEnv-v0",
+        env_kwargs={"realism": {"pushes": True}, "max_episode_steps": 30},
+        callbacks=[control],
+    ).run()
     assert set(control.scales.values()) == {1.0}
 
     first = RecordsPushScale(interrupt_at=60)
@@ -533,9 +569,11 @@ def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_
 def test_a_push_curriculum_that_would_do_nothing_is_refused(hyperparams, env_kwargs, message):
     with pytest.raises(UsageError, match=re.escape(message)):
         ExperimentConfig.resolve(
-            "sac", "MinitaurBulletEnv-v0", hyperparams={"push_curriculum": hyperparams},
+            "sac",
+            "MinitaurBulletEnv-v0",
+            hyperparams={"push_curriculum": hyperparams},
             env_kwargs=env_kwargs,
-        )  # fmt: skip
+        )
 
 
 @pytest.mark.parametrize(
@@ -550,9 +588,11 @@ def test_a_push_curriculum_finds_the_pushes_in_realism_or_the_old_keyword(env_kw
     assert config.env_pushes not in (None, False)
     with pytest.raises(UsageError, match="no pushes to scale"):  # control: pushes off
         ExperimentConfig.resolve(
-            "sac", "MinitaurBulletEnv-v0", hyperparams=curriculum,
+            "sac",
+            "MinitaurBulletEnv-v0",
+            hyperparams=curriculum,
             env_kwargs={"realism": {"pushes": False}},
-        )  # fmt: skip
+        )
 
 
 @pytest.mark.parametrize(
@@ -575,10 +615,16 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, backend, hyperp
 @pytest.mark.parametrize("algo", ["sac", "tqc", "crossq"])
 def test_the_minitaur_entries_build_and_train(tmp_path, algo):
     config = ExperimentConfig.resolve(
-        algo, "MinitaurBulletEnv-v0", hyperparams={"learning_starts": 32}, n_timesteps=64,
-        env_kwargs={"max_episode_steps": 40}, eval_freq=0, save_freq=0, vec_env="dummy",
+        algo,
+        "MinitaurBulletEnv-v0",
+        hyperparams={"learning_starts": 32},
+        n_timesteps=64,
+        env_kwargs={"max_episode_steps": 40},
+        eval_freq=0,
+        save_freq=0,
+        vec_env="dummy",
         device="cpu",
-    )  # fmt: skip
+    )
     entry = load_hyperparams(algo, "MinitaurBulletEnv-v0")
     assert entry["normalize"] is True and entry["n_timesteps"] <= 300_000
     result = Experiment.create(config, tmp_path, verbose=0).run()
@@ -598,8 +644,9 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo):
 )
 def test_hyperparameters_sb3_accepts_but_fails_on_later_are_refused_first(hyperparams, message):
     with pytest.raises(UsageError) as refused:
-        ExperimentConfig.resolve("sac", "Pendulum-v1", hyperparams={"batch_size": 256,
-                                                                   **hyperparams})  # fmt: skip
+        ExperimentConfig.resolve(
+            "sac", "Pendulum-v1", hyperparams={"batch_size": 256, **hyperparams}
+        )
     assert str(refused.value).endswith(message)
 
 

@@ -65,21 +65,51 @@ def test_other_sbx_algorithms_are_refused_by_name():
 
 def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(tmp_path):
     sbx = needs("sbx")
-    hyperparams = ["learning_starts=50", "buffer_size=5000", "batch_size=32",
-                   "policy_kwargs={net_arch: [16]}"]  # fmt: skip
+    hyperparams = [
+        "learning_starts=50",
+        "buffer_size=5000",
+        "batch_size=32",
+        "policy_kwargs={net_arch: [16]}",
+    ]
     trained = run_script(
-        "train.py", "--algo", "tqc", "--backend", "sbx", "-n", "200", "--hyperparams",
-        *hyperparams, "--eval-freq", "100", "--eval-episodes", "1", "--save-freq", "100", *TINY,
+        "train.py",
+        "--algo",
+        "tqc",
+        "--backend",
+        "sbx",
+        "-n",
+        "200",
+        "--hyperparams",
+        *hyperparams,
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "1",
+        "--save-freq",
+        "100",
+        *TINY,
         cwd=tmp_path,
-    )  # fmt: skip
+    )
     assert trained.returncode == 0, trained.stderr
     run = tmp_path / "logs" / "tqc" / "MinitaurBulletEnv-v0_1"
     shipped = tmp_path / "pretrained" / "tqc" / "MinitaurBulletEnv-v0_1"
     selected = run_script(
-        "-m", "minitaur_env.ship", str(run), "--from-steps", "200", "--episodes", "1",
-        "--select-episodes", "2", "--json", "report.json", "--ship", str(shipped),
-        "--trust-pickle", cwd=tmp_path,  # an SBX model is a pickle; this test trained it
-    )  # fmt: skip
+        "-m",
+        "minitaur_env.ship",
+        str(run),
+        "--from-steps",
+        "200",
+        "--episodes",
+        "1",
+        "--select-episodes",
+        "2",
+        "--json",
+        "report.json",
+        "--ship",
+        str(shipped),
+        "--trust-pickle",
+        cwd=tmp_path,  # an SBX model is a pickle; this test trained it
+    )
     assert selected.returncode == 0, selected.stderr
     chosen = Path(json.loads((tmp_path / "report.json").read_text())["chosen"]["model"])
     policy = load_policy(shipped / "MinitaurBulletEnv-v0.zip", device="cpu")
@@ -102,9 +132,17 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
     assert provenance["eval_seeds"] == "12345..12345"
     # its figures are evaluate.py's on the shipped file, statistics and all
     played = run_script(
-        "evaluate.py", "--model", str(shipped / "MinitaurBulletEnv-v0.zip"), "--episodes", "1",
-        "--seed", "12345", "--json", "played.json", cwd=tmp_path,
-    )  # fmt: skip
+        "evaluate.py",
+        "--model",
+        str(shipped / "MinitaurBulletEnv-v0.zip"),
+        "--episodes",
+        "1",
+        "--seed",
+        "12345",
+        "--json",
+        "played.json",
+        cwd=tmp_path,
+    )
     assert played.returncode == 0, played.stderr
     shown = json.loads((tmp_path / "played.json").read_text())
     assert provenance["eval_mean_return"] == round(shown["summary"]["return"]["mean"], 3)
@@ -112,9 +150,15 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
 
 def test_ship_refuses_zero_selection_episodes_in_one_line(tmp_path):
     refused = run_script(
-        "-m", "minitaur_env.ship", str(tmp_path), "--select-episodes", "0",
-        "--json", "report.json", cwd=tmp_path,
-    )  # fmt: skip
+        "-m",
+        "minitaur_env.ship",
+        str(tmp_path),
+        "--select-episodes",
+        "0",
+        "--json",
+        "report.json",
+        cwd=tmp_path,
+    )
     assert refused.returncode == 2
     last_line = refused.stderr.strip().splitlines()[-1]
     assert last_line.endswith("--episodes and --select-episodes must be at least 1")

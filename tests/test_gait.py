@@ -141,17 +141,40 @@ def test_bad_actions_are_refused_before_they_reach_the_robot(action, message):
 def test_a_gait_prior_policy_trains_plays_and_packages_with_its_generator(tmp_path):
     needs("huggingface_hub")
     trained = run_script(
-        "train.py", "--algo", "ppo", "--env", "MinitaurBulletTrot-v0", "-n", "256",
-        "--hyperparams", "n_envs=2", "n_steps=64", "batch_size=64", "--eval-freq", "0",
-        "--env-kwargs", "max_episode_steps=40", "gait={frequency: 3.0}", "-v", "0",
+        "train.py",
+        "--algo",
+        "ppo",
+        "--env",
+        "MinitaurBulletTrot-v0",
+        "-n",
+        "256",
+        "--hyperparams",
+        "n_envs=2",
+        "n_steps=64",
+        "batch_size=64",
+        "--eval-freq",
+        "0",
+        "--env-kwargs",
+        "max_episode_steps=40",
+        "gait={frequency: 3.0}",
+        "-v",
+        "0",
         cwd=tmp_path,
-    )  # fmt: skip
+    )
     assert trained.returncode == 0, trained.stderr
     run = tmp_path / "logs" / "ppo" / "MinitaurBulletTrot-v0_1"
     packaged = run_script(
-        "-m", "minitaur_env.package", str(run / "MinitaurBulletTrot-v0.zip"), "-o", "hub",
-        "--episodes", "1", "--video-steps", "10", cwd=tmp_path,
-    )  # fmt: skip
+        "-m",
+        "minitaur_env.package",
+        str(run / "MinitaurBulletTrot-v0.zip"),
+        "-o",
+        "hub",
+        "--episodes",
+        "1",
+        "--video-steps",
+        "10",
+        cwd=tmp_path,
+    )
     assert packaged.returncode == 0, packaged.stderr
     card = (tmp_path / "hub" / "ppo-MinitaurBulletTrot-v0" / "README.md").read_text()
     # The card makes the env the policy was trained on: the id with the run's kwargs.
@@ -165,9 +188,13 @@ def test_a_gait_prior_policy_trains_plays_and_packages_with_its_generator(tmp_pa
     assert "the gait prior's 11 entries" in card  # ONNX users learn the generator runs in the env
     # The ONNX actor plays on the same env through evaluate.py (config.yml beside it).
     played = run_script(
-        "evaluate.py", "--model", str(tmp_path / "hub/ppo-MinitaurBulletTrot-v0/policy.onnx"),
-        "--episodes", "1", cwd=tmp_path,
-    )  # fmt: skip
+        "evaluate.py",
+        "--model",
+        str(tmp_path / "hub/ppo-MinitaurBulletTrot-v0/policy.onnx"),
+        "--episodes",
+        "1",
+        cwd=tmp_path,
+    )
     assert played.returncode == 0, played.stderr
     assert "on MinitaurBulletTrot-v0" in played.stdout
 

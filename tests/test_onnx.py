@@ -26,8 +26,13 @@ EXPORT = [sys.executable, "-m", "minitaur_env.onnx"]
 
 
 def export(source: Path, output: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*EXPORT, str(source), "-o", str(output)], cwd=REPO,
-                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    return subprocess.run(
+        [*EXPORT, str(source), "-o", str(output)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 @pytest.mark.parametrize("shipped", SHIPPED, ids=lambda p: p.parents[1].name)
@@ -59,8 +64,9 @@ def tiny_model(tmp_path: Path, algo: str, env_id: str = "Pendulum-v1", **kwargs)
 
     cls = getattr(stable_baselines3, algo, None) or getattr(sb3_contrib, algo)
     extra = {"learning_starts": 50} if algo not in ("PPO", "A2C") else {"n_steps": 64}
-    model = cls(kwargs.pop("policy", "MlpPolicy"), gym.make(env_id), seed=0, device="cpu",
-                **extra, **kwargs)  # fmt: skip
+    model = cls(
+        kwargs.pop("policy", "MlpPolicy"), gym.make(env_id), seed=0, device="cpu", **extra, **kwargs
+    )
     model.learn(100)
     path = tmp_path / f"{algo.lower()}.zip"
     model.save(path)
@@ -118,8 +124,12 @@ def test_every_head_exports_and_acts_in_env_units(algo, kwargs, tmp_path):
 def test_an_averaged_actor_is_what_the_graph_holds(tmp_path):
     from minitaur_env.training.policies import StabilizedSACPolicy
 
-    model_path = tiny_model(tmp_path, "SAC", policy=StabilizedSACPolicy,
-                            policy_kwargs={"net_arch": [32], "actor_ema": 0.99})  # fmt: skip
+    model_path = tiny_model(
+        tmp_path,
+        "SAC",
+        policy=StabilizedSACPolicy,
+        policy_kwargs={"net_arch": [32], "actor_ema": 0.99},
+    )
     assert export(model_path, tmp_path / "p.onnx").returncode == 0
     model = load_policy(model_path, device="cpu")
     obs = np.random.default_rng(2).uniform(-1, 1, (32, 3)).astype(np.float32)
@@ -147,8 +157,10 @@ def test_unsupported_policies_and_files_are_one_line(tmp_path):
     for model in ("garbage.onnx", "absent.onnx"):
         played = subprocess.run(
             [sys.executable, str(REPO / "evaluate.py"), "--model", str(tmp_path / model)],
-            capture_output=True, text=True, timeout=120,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert played.returncode == 2
         (line,) = error_lines(played)
         assert line.startswith("evaluate.py: error: ")
@@ -163,8 +175,13 @@ WITHOUT_TORCH = "import sys\n" + "".join(f"sys.modules[{m!r}] = None\n" for m in
 def evaluate_without_torch(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     run = f"sys.argv = ['evaluate.py', *{list(args)!r}]\nimport runpy\n"
     run += f"runpy.run_path({str(REPO / 'evaluate.py')!r}, run_name='__main__')\n"
-    return subprocess.run([sys.executable, "-c", WITHOUT_TORCH + run], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-c", WITHOUT_TORCH + run],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_evaluate_plays_an_onnx_policy_and_its_video_without_torch(tmp_path):
@@ -176,27 +193,48 @@ def test_evaluate_plays_an_onnx_policy_and_its_video_without_torch(tmp_path):
     # a missing or doubled normalization would not walk at all.
     short = ["--episodes", "1", "--env-kwargs", "max_episode_steps=300"]
     played = evaluate_without_torch(
-        "--model", "policy.onnx", *short, "--json", "onnx.json", "--render-video",
-        "--video-episodes", "1", "-o", "videos/onnx.mp4", cwd=tmp_path,
-    )  # fmt: skip
+        "--model",
+        "policy.onnx",
+        *short,
+        "--json",
+        "onnx.json",
+        "--render-video",
+        "--video-episodes",
+        "1",
+        "-o",
+        "videos/onnx.mp4",
+        cwd=tmp_path,
+    )
     assert played.returncode == 0, played.stderr
     assert "onnxruntime" in played.stdout and (tmp_path / "videos" / "onnx.mp4").stat().st_size
     zipped = subprocess.run(
-        [sys.executable, str(REPO / "evaluate.py"), "--model",
-         str(shipped / "MinitaurBulletEnv-v0.zip"), *short, "--json", "zip.json"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(REPO / "evaluate.py"),
+            "--model",
+            str(shipped / "MinitaurBulletEnv-v0.zip"),
+            *short,
+            "--json",
+            "zip.json",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert zipped.returncode == 0, zipped.stderr
-    onnx, zip_ = (json.loads((tmp_path / f).read_text())["per_episode"]
-                  for f in ("onnx.json", "zip.json"))  # fmt: skip
+    onnx, zip_ = (
+        json.loads((tmp_path / f).read_text())["per_episode"] for f in ("onnx.json", "zip.json")
+    )
     for mine, theirs in zip(onnx, zip_, strict=True):
         assert mine["length"] == theirs["length"] == 300
         assert mine["return"] == pytest.approx(theirs["return"], rel=0.05)
         assert theirs["return"] > 5  # it walks
 
     # Without torch a model zip is one line that points to the export beside it.
-    zip_alone = evaluate_without_torch("--model", str(shipped / "MinitaurBulletEnv-v0.zip"),
-                                       cwd=tmp_path)  # fmt: skip
+    zip_alone = evaluate_without_torch(
+        "--model", str(shipped / "MinitaurBulletEnv-v0.zip"), cwd=tmp_path
+    )
     assert zip_alone.returncode == 2
     (line,) = error_lines(zip_alone)
     assert "is not installed" in line

@@ -25,9 +25,13 @@ PAGES = [REPO / "README.md"] + [
 DOCS = "\n".join(page.read_text() for page in PAGES)
 PYTHON_BLOCKS = re.findall(r"^```python\n(.*?)^```", DOCS, flags=re.S | re.M)
 COMMANDS = [
-    ["train.py"], ["evaluate.py"], ["-m", "minitaur_env.sweep"], ["-m", "minitaur_env.package"],
-    ["-m", "minitaur_env.onnx"], ["-m", "minitaur_env.ship"],
-]  # fmt: skip
+    ["train.py"],
+    ["evaluate.py"],
+    ["-m", "minitaur_env.sweep"],
+    ["-m", "minitaur_env.package"],
+    ["-m", "minitaur_env.onnx"],
+    ["-m", "minitaur_env.ship"],
+]
 
 
 def without_training(block: str) -> str:
@@ -57,12 +61,14 @@ def test_the_docs_have_the_snippets_this_test_runs():
 def test_python_snippets_run(tmp_path):
     # In order, in one namespace: the ONNX snippet plays the obs of the first one, and
     # runs where a policy.onnx lies (the shipped SAC's, copied).
-    shutil.copyfile(REPO / "pretrained/sac/MinitaurBulletEnv-v0_1/policy.onnx",
-                    tmp_path / "policy.onnx")  # fmt: skip
+    shutil.copyfile(
+        REPO / "pretrained/sac/MinitaurBulletEnv-v0_1/policy.onnx", tmp_path / "policy.onnx"
+    )
     script = "\n\n".join(without_training(block) for block in PYTHON_BLOCKS)
     script += "\nprint(frame.shape, action.shape, config.seed)"
-    done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=300)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split("\n")[-2] == "(480, 640, 3) (8,) 1"
 
@@ -74,8 +80,9 @@ def test_without_training_drops_only_the_training_calls():
 
 @pytest.mark.parametrize("command", COMMANDS, ids=" ".join)
 def test_every_command_has_help(command):
-    shown = subprocess.run([sys.executable, *command, "--help"], cwd=REPO, capture_output=True,
-                           text=True, timeout=120)  # fmt: skip
+    shown = subprocess.run(
+        [sys.executable, *command, "--help"], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
     assert shown.returncode == 0, shown.stderr
     assert shown.stdout.startswith("usage:")
     name = command[-1].removeprefix("minitaur_env.")

@@ -86,9 +86,16 @@ def test_evaluate_reports_the_realism_rows_and_refuses_a_model_without_a_motor_m
     plain = run_script("evaluate.py", "--model", str(model), "--episodes", "1", cwd=tmp_path)
     assert "foot slip" not in plain.stdout
     refused = run_script(
-        "evaluate.py", "--model", str(model), "--episodes", "1", "--realism",
-        "--env-kwargs", "motor_control=pd", cwd=tmp_path,
-    )  # fmt: skip
+        "evaluate.py",
+        "--model",
+        str(model),
+        "--episodes",
+        "1",
+        "--realism",
+        "--env-kwargs",
+        "motor_control=pd",
+        cwd=tmp_path,
+    )
     assert refused.returncode == 2
     assert error_lines(refused) == [
         "evaluate.py: error: --realism on MinitaurBulletEnv-v0: the realism probe needs the "

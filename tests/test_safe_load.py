@@ -62,9 +62,17 @@ def trap_pickle(path: Path, marker: Path) -> None:
 def trained(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("trained")
     result = run_script(
-        "train.py", "-n", "120", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0", *TINY,
+        "train.py",
+        "-n",
+        "120",
+        *FAST_SAC,
+        "--eval-freq",
+        "0",
+        "--save-freq",
+        "0",
+        *TINY,
         cwd=root,
-    )  # fmt: skip
+    )
     assert result.returncode == 0, result.stderr
     return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
 
@@ -87,8 +95,9 @@ def strip_embedded_statistics(model: Path) -> None:
 
 
 def evaluate(*args: str, cwd: Path):
-    return run_script("evaluate.py", *args, "--episodes", "1", "--env-kwargs",
-                      "max_episode_steps=20", cwd=cwd)  # fmt: skip
+    return run_script(
+        "evaluate.py", *args, "--episodes", "1", "--env-kwargs", "max_episode_steps=20", cwd=cwd
+    )
 
 
 def test_run_folders_carry_pickle_free_statistics_that_act_as_the_pickle(trained):
@@ -131,8 +140,9 @@ def test_evaluate_needs_the_flag_for_statistics_without_their_json(run, tmp_path
     assert refused.returncode == 2 and not marker.exists()
     (line,) = error_lines(refused)
     assert str(stats) in line and "--trust-pickle" in line
-    trusted = evaluate("--model", str(run / "MinitaurBulletEnv-v0.zip"), "--trust-pickle",
-                       cwd=tmp_path)  # fmt: skip
+    trusted = evaluate(
+        "--model", str(run / "MinitaurBulletEnv-v0.zip"), "--trust-pickle", cwd=tmp_path
+    )
     assert trusted.returncode == 0, trusted.stderr
     assert marker.read_text() == "ran"
 
@@ -190,13 +200,23 @@ def test_packaging_runs_no_code_from_the_files(run, tmp_path):
     trap_zip(model, marker)
     stats = run / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
     trap_pickle(stats, marker)  # its JSON sibling is what packaging reads
-    package = ["-m", "minitaur_env.package", str(model), "-o", str(tmp_path / "hub"),
-               "--episodes", "1", "--video-steps", "10"]  # fmt: skip
+    package = [
+        "-m",
+        "minitaur_env.package",
+        str(model),
+        "-o",
+        str(tmp_path / "hub"),
+        "--episodes",
+        "1",
+        "--video-steps",
+        "10",
+    ]
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, *package], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=300)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, *package], cwd=tmp_path, capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     assert not marker.exists()
     folder = tmp_path / "hub" / "sac-MinitaurBulletEnv-v0"

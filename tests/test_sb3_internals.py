@@ -42,12 +42,21 @@ def test_vec_check_nan_checks_through_check_val():
 
 def test_eval_callback_keeps_the_history_a_resume_restores(tmp_path):
     callback = EvalCallback(pendulum(), eval_freq=10)
-    for name in ("evaluations_timesteps", "evaluations_results", "evaluations_length",
-                 "best_mean_reward", "n_calls"):  # fmt: skip
+    for name in (
+        "evaluations_timesteps",
+        "evaluations_results",
+        "evaluations_length",
+        "best_mean_reward",
+        "n_calls",
+    ):
         assert hasattr(callback, name), name
     evaluations = tmp_path / "evaluations.npz"
-    np.savez(evaluations, timesteps=np.array([10, 20]), results=np.array([[1.0], [3.0]]),
-             ep_lengths=np.array([[5], [5]]))  # fmt: skip
+    np.savez(
+        evaluations,
+        timesteps=np.array([10, 20]),
+        results=np.array([[1.0], [3.0]]),
+        ep_lengths=np.array([[5], [5]]),
+    )
     resumed = ResumableEvalCallback(pendulum(), eval_freq=10)
     resumed.continue_from(evaluations, tmp_path / "best_model.zip", steps=20, n_envs=1)
     assert resumed.evaluations_timesteps == [10, 20] and resumed.best_mean_reward == 3.0

@@ -40,8 +40,10 @@ def test_no_two_purposes_share_a_seed_after_resumes_at_any_step():
 def test_the_old_seeding_is_what_the_plan_prevents():
     # negative control: seed + steps for a resumed session, seed + 10000 for evaluation
     def old(run_seed: int, started_at: int, n_envs: int) -> list[range]:
-        return [range(run_seed + started_at, run_seed + started_at + n_envs),
-                range(run_seed + 10_000, run_seed + 10_001)]  # fmt: skip
+        return [
+            range(run_seed + started_at, run_seed + started_at + n_envs),
+            range(run_seed + 10_000, run_seed + 10_001),
+        ]
 
     assert overlapping([*old(0, 10_000, 1), *old(0, 0, 1)])  # trains on its eval episodes
     assert overlapping([*old(0, 5000, 8), *JUDGING])  # and on the selection seeds
@@ -66,10 +68,17 @@ def test_a_run_and_its_resume_reset_on_the_plans_seeds(tmp_path, monkeypatch):
 
     monkeypatch.setattr(pendulum.PendulumEnv, "reset", recording_reset)
     config = ExperimentConfig.resolve(
-        "sac", "Pendulum-v1", seed=3, n_timesteps=200, eval_freq=100, eval_episodes=1,
-        save_freq=100, vec_env="dummy", device="cpu",
+        "sac",
+        "Pendulum-v1",
+        seed=3,
+        n_timesteps=200,
+        eval_freq=100,
+        eval_episodes=1,
+        save_freq=100,
+        vec_env="dummy",
+        device="cpu",
         hyperparams={"learning_starts": 50, "batch_size": 16, "policy_kwargs": {"net_arch": [8]}},
-    )  # fmt: skip
+    )
     plan = SeedPlan(3)
     result = Experiment.create(config, tmp_path, verbose=0, progress="none").run()
     # SB3 would have seeded the training env with the model's seed 3

@@ -42,12 +42,14 @@ def judged(monkeypatch):
 def test_fewest_falls_wins_over_a_higher_mean(tmp_path, judged):
     table, _ = judged
     run = fake_run(tmp_path)
-    table.update({
-        "best_model.zip": (25.0, 2),  # the highest mean, but it falls
-        "MinitaurBulletEnv-v0.zip": (18.0, 0),
-        "rl_model_300_steps.zip": (19.0, 0),  # no falls and the best mean of those
-        "rl_model_100_steps.zip": (30.0, 1),
-    })  # fmt: skip
+    table.update(
+        {
+            "best_model.zip": (25.0, 2),  # the highest mean, but it falls
+            "MinitaurBulletEnv-v0.zip": (18.0, 0),
+            "rl_model_300_steps.zip": (19.0, 0),  # no falls and the best mean of those
+            "rl_model_100_steps.zip": (30.0, 1),
+        }
+    )
     report = shipping.select([run], episodes=2, from_steps=0, log=lambda _: None)
     assert Path(report["chosen"]["model"]).name == "rl_model_300_steps.zip"
 
@@ -84,14 +86,16 @@ CLASSIC = {"dynamics_ranges": "classic", "realism": "classic"}
 def test_also_on_sums_falls_over_the_conditions_and_reports_each(tmp_path, judged):
     table, _ = judged
     run = fake_run(tmp_path)
-    table.update({
-        "best_model.zip": (25.0, 3),
-        "MinitaurBulletEnv-v0.zip": (25.0, 3),
-        "rl_model_300_steps.zip": (20.0, 0),  # the best on its own env...
-        ("rl_model_300_steps.zip", "dynamics_ranges=classic realism=classic"): (14.0, 2),
-        "rl_model_100_steps.zip": (16.0, 1),  # ...but this one falls less in all
-        ("rl_model_100_steps.zip", "dynamics_ranges=classic realism=classic"): (15.0, 0),
-    })  # fmt: skip
+    table.update(
+        {
+            "best_model.zip": (25.0, 3),
+            "MinitaurBulletEnv-v0.zip": (25.0, 3),
+            "rl_model_300_steps.zip": (20.0, 0),  # the best on its own env...
+            ("rl_model_300_steps.zip", "dynamics_ranges=classic realism=classic"): (14.0, 2),
+            "rl_model_100_steps.zip": (16.0, 1),  # ...but this one falls less in all
+            ("rl_model_100_steps.zip", "dynamics_ranges=classic realism=classic"): (15.0, 0),
+        }
+    )
     report = shipping.select([run], episodes=2, from_steps=0, also_on=[CLASSIC], log=lambda _: None)
     assert Path(report["chosen"]["model"]).name == "rl_model_100_steps.zip"
     assert report["selection"][str(run.checkpoint(100))]["falls"] == 1

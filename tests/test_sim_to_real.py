@@ -17,9 +17,12 @@ from minitaur_env.sensors import SensorHistory, euler_to_quaternion, quaternion_
 
 # Every classic range pinned to one value, so that only the knob under test differs.
 PINNED = {
-    "base_mass_scale": (1.0, 1.0), "leg_mass_scale": (1.0, 1.0), "battery_voltage": (16.0, 16.0),
-    "motor_viscous_damping": (0.0, 0.0), "foot_friction": (1.0, 1.0),
-}  # fmt: skip
+    "base_mass_scale": (1.0, 1.0),
+    "leg_mass_scale": (1.0, 1.0),
+    "battery_voltage": (16.0, 16.0),
+    "motor_viscous_damping": (0.0, 0.0),
+    "foot_friction": (1.0, 1.0),
+}
 
 
 def observations(steps: int = 30, seed: int = 0, action: np.ndarray | None = None, **kwargs):
@@ -118,8 +121,9 @@ def test_joint_friction_slows_the_legs():
     travel = {}
     for friction in (0.0, 20.0):
         ranges = {**PINNED, "joint_friction": (friction, friction)}
-        angles, _ = observations(2, action=extend, on_rack=True, randomize_dynamics=True,
-                                 dynamics_ranges=ranges)  # fmt: skip
+        angles, _ = observations(
+            2, action=extend, on_rack=True, randomize_dynamics=True, dynamics_ranges=ranges
+        )
         travel[friction] = np.abs(angles[-1, :8] - angles[0, :8]).mean()
     assert travel[20.0] < 0.8 * travel[0.0]
 
@@ -421,14 +425,19 @@ def test_ranges_moved_out_of_dynamics_ranges_warn_and_draw_the_same_episodes():
         old = MinitaurBulletEnv(dynamics_ranges={**ranges, "motor_strength": [0.8, 1.2]})
     new = MinitaurBulletEnv(
         dynamics_ranges={"motor_strength": [0.8, 1.2]},
-        realism={"control_time_step": [0.003, 0.02], "control_latency": [0.0, 0.04],
-                 "imu_bias": [-0.05, 0.05]},
-    )  # fmt: skip
+        realism={
+            "control_time_step": [0.003, 0.02],
+            "control_latency": [0.0, 0.04],
+            "imu_bias": [-0.05, 0.05],
+        },
+    )
     assert old.realism == new.realism and old.dynamics_ranges == new.dynamics_ranges
     for env in (old, new):
         env.action_space.seed(0)
-    runs = [[env.reset(seed=5)[1]["realism"]] + [env.step(np.zeros(8))[0] for _ in range(5)]
-            for env in (old, new)]  # fmt: skip
+    runs = [
+        [env.reset(seed=5)[1]["realism"]] + [env.step(np.zeros(8))[0] for _ in range(5)]
+        for env in (old, new)
+    ]
     assert runs[0][0] == runs[1][0]
     np.testing.assert_array_equal(np.array(runs[0][1:]), np.array(runs[1][1:]))
     old.close()

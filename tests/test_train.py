@@ -29,9 +29,13 @@ from tests.scripts import REPO, TINY, error_lines, needs, run_main, run_script, 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 FAST_SAC = [
-    "--hyperparams", "learning_starts=50", "buffer_size=5000", "batch_size=32",
-    "train_freq=1", "gradient_steps=1",
-]  # fmt: skip
+    "--hyperparams",
+    "learning_starts=50",
+    "buffer_size=5000",
+    "batch_size=32",
+    "train_freq=1",
+    "gradient_steps=1",
+]
 
 
 def run_dir_of(root, algo="sac", env="MinitaurBulletEnv-v0", n=1):
@@ -41,11 +45,22 @@ def run_dir_of(root, algo="sac", env="MinitaurBulletEnv-v0", n=1):
 def test_default_run_leaves_everything_behind(tmp_path):
     result = run_script(
         "train.py",
-        "-n", "240", *FAST_SAC,
-        "--eval-freq", "120", "--eval-episodes", "2",
-        "--save-freq", "80", "--video-freq", "200", "--video-length", "30",
-        *TINY, cwd=tmp_path,
-    )  # fmt: skip
+        "-n",
+        "240",
+        *FAST_SAC,
+        "--eval-freq",
+        "120",
+        "--eval-episodes",
+        "2",
+        "--save-freq",
+        "80",
+        "--video-freq",
+        "200",
+        "--video-length",
+        "30",
+        *TINY,
+        cwd=tmp_path,
+    )
     assert result.returncode == 0, result.stderr
     run = run_dir_of(tmp_path)
     config = yaml.safe_load((run / "config.yml").read_text())
@@ -105,8 +120,11 @@ def run_in_terminal(args: list[str], cwd) -> str:
     fcntl.ioctl(child, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
     process = subprocess.Popen(
         [sys.executable, str(REPO / "train.py"), *args],
-        cwd=cwd, stdin=subprocess.DEVNULL, stdout=child, stderr=child,
-    )  # fmt: skip
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+        stdout=child,
+        stderr=child,
+    )
     os.close(child)
     output = b""
     while True:
@@ -123,8 +141,19 @@ def run_in_terminal(args: list[str], cwd) -> str:
 
 
 def test_a_terminal_gets_a_progress_bar_and_v1_the_logger_tables(tmp_path):
-    args = ["-n", "80", *FAST_SAC, "--eval-freq", "40", "--eval-episodes", "1",
-            "--save-freq", "0", "--env-kwargs", "max_episode_steps=20"]  # fmt: skip
+    args = [
+        "-n",
+        "80",
+        *FAST_SAC,
+        "--eval-freq",
+        "40",
+        "--eval-episodes",
+        "1",
+        "--save-freq",
+        "0",
+        "--env-kwargs",
+        "max_episode_steps=20",
+    ]
     shown = run_in_terminal(args, tmp_path)
     assert "80/80" in shown and "step/s" in shown and "eval " in shown  # the bar, at its end
     assert "  step 40/80" not in shown and "total_timesteps" not in shown
@@ -255,8 +284,17 @@ def test_ctrl_c_saves_model_and_replay_buffer(tmp_path, sigint_ignored):
 
 
 # PPO's envs in 3 processes, more than this 2-core machine has: the common user machine.
-THREE_PROCESSES = ["--algo", "ppo", "--n-envs", "6", "--vec-env", "grouped",
-                   "--hyperparams", "n_steps=32", "batch_size=32"]  # fmt: skip
+THREE_PROCESSES = [
+    "--algo",
+    "ppo",
+    "--n-envs",
+    "6",
+    "--vec-env",
+    "grouped",
+    "--hyperparams",
+    "n_steps=32",
+    "batch_size=32",
+]
 
 
 BROKEN_IN_WORKERS = """
@@ -316,9 +354,16 @@ def start_with_three_worker_processes(tmp_path, *args, setup=""):
 )
 def test_ctrl_c_and_sigterm_with_worker_processes_save_a_checkpoint(tmp_path, how, code):
     process = start_with_three_worker_processes(
-        tmp_path, "-n", "100000", "--eval-freq", "0", "--save-freq", "96", *THREE_PROCESSES,
+        tmp_path,
+        "-n",
+        "100000",
+        "--eval-freq",
+        "0",
+        "--save-freq",
+        "96",
+        *THREE_PROCESSES,
         *TINY,
-    )  # fmt: skip
+    )
     # Training is under way past a checkpoint: the signal lands mid-run, not at the start.
     _wait_for("logs/ppo/*/checkpoints/rl_model_192_steps.zip", tmp_path, timeout=600)
     if how == "ctrl-c to the group":
@@ -351,9 +396,20 @@ def test_sigterm_without_workers_saves_model_and_replay_buffer(tmp_path):
 
 def test_an_env_failing_in_a_worker_ends_the_run_with_one_line_and_a_checkpoint(tmp_path):
     process = start_with_three_worker_processes(
-        tmp_path, "--env", "BrokenInWorkers-v0", "-n", "2000", "--eval-freq", "0",
-        "--save-freq", "1000", *THREE_PROCESSES, "-v", "0", setup=BROKEN_IN_WORKERS,
-    )  # fmt: skip
+        tmp_path,
+        "--env",
+        "BrokenInWorkers-v0",
+        "-n",
+        "2000",
+        "--eval-freq",
+        "0",
+        "--save-freq",
+        "1000",
+        *THREE_PROCESSES,
+        "-v",
+        "0",
+        setup=BROKEN_IN_WORKERS,
+    )
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 1, stderr
     assert error_lines(stderr) == [
@@ -368,9 +424,15 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
     args = ["-n", "100", *FAST_SAC, "--eval-freq", "0", "--save-freq", "50", *TINY]
     assert run_script("train.py", *args, cwd=tmp_path).returncode == 0
     run = str(run_dir_of(tmp_path))
-    written = [run_dir_of(tmp_path) / name for name in
-               ("config.yml", "command.txt", "MinitaurBulletEnv-v0/args.yml",
-                "MinitaurBulletEnv-v0/config.yml")]  # fmt: skip
+    written = [
+        run_dir_of(tmp_path) / name
+        for name in (
+            "config.yml",
+            "command.txt",
+            "MinitaurBulletEnv-v0/args.yml",
+            "MinitaurBulletEnv-v0/config.yml",
+        )
+    ]
     before = [path.read_bytes() for path in written]
     for flags, message in (
         (["--seed", "3"], "seed 3 contradicts the run's saved seed 0"),
@@ -386,9 +448,19 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
         # a refused resume leaves the run's settings as they were
         assert [path.read_bytes() for path in written] == before, flags
     extended = run_script(
-        "train.py", "--resume", run, "-n", "150", "--seed", "0", "--num-threads", "1",
-        "-v", "0", cwd=tmp_path,
-    )  # fmt: skip
+        "train.py",
+        "--resume",
+        run,
+        "-n",
+        "150",
+        "--seed",
+        "0",
+        "--num-threads",
+        "1",
+        "-v",
+        "0",
+        cwd=tmp_path,
+    )
     assert extended.returncode == 0, extended.stderr
     assert "for 50 steps (from 100)" in extended.stdout
     assert load_model(SAC, run_dir_of(tmp_path) / "MinitaurBulletEnv-v0.zip").num_timesteps == 150
@@ -396,9 +468,20 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
 
 def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
     result = run_script(
-        "train.py", "-n", "400", "--hyperparams", "learning_starts=30", "learning_rate=1e12",
-        "batch_size=16", "--eval-freq", "0", "--save-freq", "10", *TINY, cwd=tmp_path,
-    )  # fmt: skip
+        "train.py",
+        "-n",
+        "400",
+        "--hyperparams",
+        "learning_starts=30",
+        "learning_rate=1e12",
+        "batch_size=16",
+        "--eval-freq",
+        "0",
+        "--save-freq",
+        "10",
+        *TINY,
+        cwd=tmp_path,
+    )
     assert result.returncode == 1
     lines = error_lines(result)
     assert len(lines) == 1 and "training diverged" in lines[0]
@@ -412,11 +495,29 @@ def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
 
 def test_generic_on_cartpole_with_ppo(tmp_path):
     result = run_script(
-        "train.py", "--algo", "ppo", "--env", "CartPole-v1", "-n", "256",
-        "--hyperparams", "n_steps=64", "batch_size=32", "normalize=true", "--n-envs", "2",
-        "--eval-freq", "128", "--eval-episodes", "2", "--save-freq", "128", "-v", "0",
+        "train.py",
+        "--algo",
+        "ppo",
+        "--env",
+        "CartPole-v1",
+        "-n",
+        "256",
+        "--hyperparams",
+        "n_steps=64",
+        "batch_size=32",
+        "normalize=true",
+        "--n-envs",
+        "2",
+        "--eval-freq",
+        "128",
+        "--eval-episodes",
+        "2",
+        "--save-freq",
+        "128",
+        "-v",
+        "0",
         cwd=tmp_path,
-    )  # fmt: skip
+    )
     assert result.returncode == 0, result.stderr
     run = run_dir_of(tmp_path, "ppo", "CartPole-v1")
     model = PPO.load(run / "best_model.zip", device="cpu")
@@ -428,8 +529,16 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
     assert (run / "CartPole-v1" / "vecnormalize.pkl").is_file()
     assert (run / "best_model_vecnormalize.pkl").is_file()
     assert (run / "checkpoints" / "rl_model_vecnormalize_128_steps.pkl").is_file()
-    evaluated = run_script("evaluate.py", "--model", str(run / "best_model.zip"),
-                           "--episodes", "2", "--json", "stats.json", cwd=tmp_path)  # fmt: skip
+    evaluated = run_script(
+        "evaluate.py",
+        "--model",
+        str(run / "best_model.zip"),
+        "--episodes",
+        "2",
+        "--json",
+        "stats.json",
+        cwd=tmp_path,
+    )
     assert evaluated.returncode == 0, evaluated.stderr
     assert "observations normalized" in evaluated.stdout
 
@@ -485,10 +594,21 @@ def test_evaluations_normalize_observations_with_the_training_statistics(tmp_pat
     from minitaur_env.training import Experiment, ExperimentConfig
 
     config = ExperimentConfig.resolve(
-        "sac", "Pendulum-v1", n_timesteps=300, eval_freq=150, eval_episodes=1, save_freq=0,
-        vec_env="dummy", device="cpu", hyperparams={"learning_starts": 50, "batch_size": 16,
-        "normalize": True, "policy_kwargs": {"net_arch": [8]}},
-    )  # fmt: skip
+        "sac",
+        "Pendulum-v1",
+        n_timesteps=300,
+        eval_freq=150,
+        eval_episodes=1,
+        save_freq=0,
+        vec_env="dummy",
+        device="cpu",
+        hyperparams={
+            "learning_starts": 50,
+            "batch_size": 16,
+            "normalize": True,
+            "policy_kwargs": {"net_arch": [8]},
+        },
+    )
     experiment = Experiment.create(config, tmp_path)
     assert experiment.run().status == "completed"
     trained, evaluated = experiment.env, experiment.eval_env
@@ -532,9 +652,19 @@ def test_runs_started_together_get_their_own_folders(tmp_path):
 def test_an_unwritable_tensorboard_folder_is_refused_before_training(tmp_path):
     (tmp_path / "a-file").write_text("")
     result = run_script(
-        "train.py", "--env", "Pendulum-v1", "-n", "100", "--tensorboard-log",
-        str(tmp_path / "a-file" / "tb"), "-f", str(tmp_path / "logs"), "-v", "0", cwd=tmp_path,
-    )  # fmt: skip
+        "train.py",
+        "--env",
+        "Pendulum-v1",
+        "-n",
+        "100",
+        "--tensorboard-log",
+        str(tmp_path / "a-file" / "tb"),
+        "-f",
+        str(tmp_path / "logs"),
+        "-v",
+        "0",
+        cwd=tmp_path,
+    )
     assert result.returncode == 2
     assert error_lines(result) == [
         f"train.py: error: cannot write to {tmp_path / 'a-file' / 'tb'}: Not a directory"
