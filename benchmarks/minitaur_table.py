@@ -20,6 +20,10 @@ wall-clock, right).
     python benchmarks/minitaur_table.py                      # the benchmark table
     python benchmarks/minitaur_table.py --table ablation     # the SAC ablation
     python benchmarks/minitaur_table.py --row "mine=logs/kept/seed*" --plot mine.png
+    python benchmarks/minitaur_table.py --table sac-screen   # a "curves" table
+
+A table of kind "curves" in tables.yml shows the runs' periodic evaluations at given
+steps, a line per run or one line of medians, and plays no episodes.
 """
 
 from __future__ import annotations
@@ -188,6 +192,78 @@ def render(specs: list[tuple[str, str]], args: argparse.Namespace) -> tuple[str,
     return "\n".join(lines), groups, missing
 
 
+def evaluations_with_a_fall(run: RunFolder) -> str:
+    """How many periodic evaluations had an episode end before the time limit."""
+    limit = gym.spec(run.read_config()["env"]).max_episode_steps
+    with np.load(run.evaluations) as data:
+        fell = (data["ep_lengths"] < limit).any(axis=1)
+    return f"{int(fell.sum())} of {len(fell)}"
+
+
+def curve_cells(
+    curves: list[RunCurve], table: dict, runs: list[RunFolder], medians: bool
+) -> list[str]:
+    """A line's cells after its label and seed: one run's, or the median over runs."""
+
+    def shown(values: list[float]) -> str:
+        finite = [v for v in values if np.isfinite(v)]
+        if not finite:
+            return ""
+        return f"{np.median(finite):.2f}" if medians else cell(finite)
+
+    cells = [shown([c.at(step) for c in curves]) for step in table["at"]]
+    for column in table.get("columns", []):
+        if column == "best":
+            best = [c.best for c in curves]
+            value = shown([b[0] for b in best])
+            cells.append(value if medians else f"{value} @{best[0][1] // 1000}k")
+        elif column == "last evaluation":
+            cells.append(f"{int(np.median([c.steps[-1] for c in curves])) // 1000}k")
+        elif column == "exploring episodes fallen":
+            low, high = table["falls_between"]
+            share = [100 * training_fall_share(run, low, high) for run in runs]
+            finite = [v for v in share if np.isfinite(v)]
+            cells.append(f"{np.median(finite):.0f} %" if finite else "")
+        elif column == "evaluations with a fall":
+            cells.append("" if medians else evaluations_with_a_fall(runs[0]))
+        else:
+            raise UsageError(f"tables.yml: no column {column!r} in a curves table")
+    return cells
+
+
+def run_folders(patterns: str | list[str]) -> list[RunFolder]:
+    patterns = [patterns] if isinstance(patterns, str) else patterns
+    found = [Path(p) for pattern in patterns for p in sorted(glob(str(RESULTS / pattern)))]
+    return [RunFolder(p) for p in found if RunFolder.is_run(p)]
+
+
+def render_curves(table: dict) -> str:
+    """A table of periodic evaluations (no episodes played): a row's runs one line each,
+    the label on the first and "the same" on the others; a row given as ``{median: GLOB}``
+    is one line of medians over its runs."""
+    columns = [table.get("label", "configuration"), "seed"]
+    columns += [f"@{step // 1000}k" for step in table["at"]] + table.get("columns", [])
+    lines = ["| " + " | ".join(columns) + " |", "|---" * len(columns) + "|"]
+    for label, spec in table["rows"].items():
+        medians = isinstance(spec, dict)
+        runs = run_folders(spec["median"] if medians else spec)
+        if not runs:
+            raise UsageError(f"tables.yml: no run folders for the row {label!r} ({spec})")
+        seeds = [str(run.read_config()["seed"]) for run in runs]
+        curves = [RunCurve.read(run) for run in runs]
+        if medians:
+            groups = [(label, " ".join(seeds) + " (medians)", curves, runs)]
+        else:
+            groups = [
+                (label if index == 0 else "the same", seed, [curve], [run])
+                for index, (seed, curve, run) in enumerate(zip(seeds, curves, runs, strict=True))
+            ]
+        for shown_label, seed, group_curves, group_runs in groups:
+            cells = curve_cells(group_curves, table, group_runs, medians)
+            lines.append("| " + " | ".join([shown_label, seed, *cells]) + " |")
+    return "\n".join(lines)
+
+
 def table_specs(name: str) -> list[tuple[str, str]]:
     return [(label, str(RESULTS / pattern)) for label, pattern in TABLES[name]["rows"].items()]
 
@@ -208,7 +284,10 @@ def docs_tables(args: argparse.Namespace, root: Path, write: bool) -> list[str]:
             raise UsageError(f"{table['page']} has no {begin} ... {end} for table {name!r}")
         head, rest = text.split(begin)
         old, tail = rest.split(end, 1)
-        new = "\n" + render(table_specs(name), args)[0] + "\n"
+        if table.get("kind") == "curves":
+            new = "\n" + render_curves(table) + "\n"
+        else:
+            new = "\n" + render(table_specs(name), args)[0] + "\n"
         if new != old:
             differing.append(f"{name} ({table['page']})")
             if write:
@@ -256,6 +335,9 @@ def main(argv: list[str] | None = None) -> None:
             )
         done = "rewrote " + ", ".join(differing) if differing else "every table matches its runs"
         print(done)
+        return
+    if TABLES[args.table].get("kind") == "curves" and not args.row:
+        print(render_curves(TABLES[args.table]))
         return
     specs: list[tuple[str, str]] = []
     for text in args.row or []:

@@ -315,3 +315,41 @@ def test_the_share_of_exploring_episodes_that_fell(tmp_path, finished_run, monke
     assert training_fall_share(run, 0, 3900) == pytest.approx(3 / 6)
     assert training_fall_share(run, 2800, 3800) == 0.0  # the one episode ran to the limit
     assert np.isnan(training_fall_share(run, 4000, 5000))  # no episode ended there
+
+
+def fake_run(folder: Path, seed: int, returns: list[float], lengths: list[int]) -> None:
+    """A run folder holding only a config and periodic evaluations (2 episodes each)."""
+    folder.mkdir(parents=True)
+    (folder / "config.yml").write_text(f"algo: sac\nenv: MinitaurBulletEnv-v0\nseed: {seed}\n")
+    steps = 10_000 * np.arange(1, len(returns) + 1)
+    np.savez(
+        folder / "evaluations.npz",
+        timesteps=steps,
+        results=np.repeat(np.array(returns)[:, None], 2, axis=1),
+        ep_lengths=np.array([[length, 1000] for length in lengths]),
+    )
+
+
+def test_a_curves_table_gives_each_run_its_evaluations_and_a_median_row(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    module = importlib.import_module("minitaur_table")
+    monkeypatch.setattr(module, "RESULTS", tmp_path)
+    fake_run(tmp_path / "row" / "seed0", 0, [1.0, 5.0, 3.0], [1000, 40, 1000])
+    fake_run(tmp_path / "row" / "seed1", 1, [2.0, 9.0], [1000, 1000])
+    table = {
+        "label": "config",
+        "at": [10_000, 30_000],
+        "columns": ["best", "last evaluation", "evaluations with a fall"],
+        "rows": {"mine": "row/seed*", "both": {"median": "row/seed*"}},
+    }
+    assert module.render_curves(table).splitlines() == [
+        "| config | seed | @10k | @30k | best | last evaluation | evaluations with a fall |",
+        "|---|---|---|---|---|---|---|",
+        "| mine | 0 | 1.00 | 3.00 | 5.00 @20k | 30k | 1 of 3 |",
+        "| the same | 1 | 2.00 |  | 9.00 @20k | 20k | 0 of 2 |",  # stopped before 30k
+        "| both | 0 1 (medians) | 1.50 | 3.00 | 7.00 | 25k |  |",
+    ]
+    with pytest.raises(UsageError, match=r"no run folders for the row 'gone' \(nothing/\*\)"):
+        module.render_curves({**table, "rows": {"gone": "nothing/*"}})
+    with pytest.raises(UsageError, match="no column 'speed' in a curves table"):
+        module.render_curves({**table, "columns": ["speed"]})
