@@ -264,6 +264,42 @@ def render_curves(table: dict) -> str:
     return "\n".join(lines)
 
 
+def render_robustness(table: dict) -> str:
+    """A table of robustness.py's results: a row merges the columns of its sources
+    ("FILE#POLICY", FILE a JSON that robustness.py wrote); each cell is the mean ± std
+    return over the episodes and the falls in parentheses, "-" where not measured."""
+    columns = table["columns"]
+    lines = [
+        "| " + " | ".join([table.get("label", "policy"), *columns]) + " |",
+        "|---" * (len(columns) + 1) + "|",
+    ]
+    for label, sources in table["rows"].items():
+        cells: dict[str, dict] = {}
+        for source in [sources] if isinstance(sources, str) else sources:
+            name, _, policy = source.partition("#")
+            results = json.loads((RESULTS / name).read_text())
+            if policy not in results:
+                raise UsageError(f"tables.yml: {name} has no policy {policy!r}")
+            cells.update(results[policy])
+        shown = [
+            f"{c['mean']:.2f} ± {c['std']:.2f} ({c['falls']})" if (c := cells.get(column)) else NONE
+            for column in columns
+        ]
+        lines.append("| " + " | ".join([label, *shown]) + " |")
+    return "\n".join(lines)
+
+
+def render_table(name: str, args: argparse.Namespace) -> str:
+    """Table ``name`` of tables.yml, by its kind."""
+    table = TABLES[name]
+    kind = table.get("kind", "final models")
+    if kind == "curves":
+        return render_curves(table)
+    if kind == "robustness":
+        return render_robustness(table)
+    return render(table_specs(name), args)[0]
+
+
 def table_specs(name: str) -> list[tuple[str, str]]:
     return [(label, str(RESULTS / pattern)) for label, pattern in TABLES[name]["rows"].items()]
 
@@ -284,10 +320,7 @@ def docs_tables(args: argparse.Namespace, root: Path, write: bool) -> list[str]:
             raise UsageError(f"{table['page']} has no {begin} ... {end} for table {name!r}")
         head, rest = text.split(begin)
         old, tail = rest.split(end, 1)
-        if table.get("kind") == "curves":
-            new = "\n" + render_curves(table) + "\n"
-        else:
-            new = "\n" + render(table_specs(name), args)[0] + "\n"
+        new = "\n" + render_table(name, args) + "\n"
         if new != old:
             differing.append(f"{name} ({table['page']})")
             if write:
@@ -336,8 +369,8 @@ def main(argv: list[str] | None = None) -> None:
         done = "rewrote " + ", ".join(differing) if differing else "every table matches its runs"
         print(done)
         return
-    if TABLES[args.table].get("kind") == "curves" and not args.row:
-        print(render_curves(TABLES[args.table]))
+    if TABLES[args.table].get("kind") in ("curves", "robustness") and not args.row:
+        print(render_table(args.table, args))  # plays no episodes
         return
     specs: list[tuple[str, str]] = []
     for text in args.row or []:

@@ -6,6 +6,7 @@ import argparse
 import importlib
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -353,3 +354,24 @@ def test_a_curves_table_gives_each_run_its_evaluations_and_a_median_row(tmp_path
         module.render_curves({**table, "rows": {"gone": "nothing/*"}})
     with pytest.raises(UsageError, match="no column 'speed' in a curves table"):
         module.render_curves({**table, "columns": ["speed"]})
+
+
+def test_a_robustness_table_merges_each_rows_sources(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    module = importlib.import_module("minitaur_table")
+    monkeypatch.setattr(module, "RESULTS", tmp_path)
+    cell = {"mean": 12.345, "std": 1.0, "falls": 2, "speed": 1.0}
+    (tmp_path / "a.json").write_text(json.dumps({"mine": {"nominal": cell}}))
+    (tmp_path / "b.json").write_text(json.dumps({"me too": {"pushes": {**cell, "falls": 20}}}))
+    table = {
+        "columns": ["nominal", "pushes", "latency"],
+        "rows": {"policy": ["a.json#mine", "b.json#me too"], "alone": "a.json#mine"},
+    }
+    assert module.render_robustness(table).splitlines() == [
+        "| policy | nominal | pushes | latency |",
+        "|---|---|---|---|",
+        "| policy | 12.35 ± 1.00 (2) | 12.35 ± 1.00 (20) | - |",
+        "| alone | 12.35 ± 1.00 (2) | - | - |",
+    ]
+    with pytest.raises(UsageError, match=re.escape("tables.yml: a.json has no policy 'yours'")):
+        module.render_robustness({**table, "rows": {"x": "a.json#yours"}})
