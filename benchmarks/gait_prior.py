@@ -70,20 +70,28 @@ def main() -> None:
     parser.add_argument("--frequency", type=float, nargs="+", default=[minitaur_env.Trot.frequency])
     parser.add_argument("--extension", type=float, nargs="+", default=[minitaur_env.Trot.extension])
     parser.add_argument("--swing", type=float, nargs="+", default=[minitaur_env.Trot.swing])
+    parser.add_argument(
+        "--conditions",
+        nargs="+",
+        choices=list(CONDITIONS),
+        default=list(CONDITIONS),
+        help="the worlds played (default: all)",
+    )
     parser.add_argument("--push-forces", type=float, nargs="*", default=[], metavar="N")
     parser.add_argument("--push-directions", type=float, nargs="+", metavar="DEG")
     args = parser.parse_args()
 
     print(f"zero action, {args.episodes} episodes (seeds 0-{args.episodes - 1}) per cell")
     classic_ids = {"classic": "MinitaurBulletEnv-v0", "tan2018": "MinitaurBulletRandomized-v0"}
-    for condition, (_, kwargs) in CONDITIONS.items():
+    conditions = {name: CONDITIONS[name] for name in args.conditions}
+    for condition, (_, kwargs) in conditions.items():
         env_id = classic_ids.get(condition, "MinitaurBulletRandomized-v0")
         print(f"baseline, no generator, {condition}: {play(env_id, kwargs, args.episodes, 8)}")
     for frequency, extension, swing in itertools.product(
         args.frequency, args.extension, args.swing
     ):
         gait = {"frequency": frequency, "extension": extension, "swing": swing}
-        for condition, (env_id, kwargs) in CONDITIONS.items():
+        for condition, (env_id, kwargs) in conditions.items():
             figures = play(env_id, {**kwargs, "gait": gait}, args.episodes, 11)
             print(
                 f"trot {frequency:g} Hz, extension {extension:g}, swing {swing:g}, "

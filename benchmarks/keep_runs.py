@@ -42,11 +42,11 @@ def keep(run: RunFolder, destination: Path) -> None:
         shutil.copy2(trial, kept.path / trial.name)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path, help="run folders or sweep trial folders")
     parser.add_argument("--into", type=Path, required=True, help="e.g. benchmarks/results/NAME")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     found = [run for path in args.runs for run in run_folders(path)]
     if not found:
         sys.exit(f"keep_runs.py: no run folder (config.yml) under {' '.join(map(str, args.runs))}")

@@ -274,6 +274,8 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
         "benchmarks/gait_prior.py",
         "--episodes",
         "1",
+        "--conditions",
+        "classic",  # the randomized worlds are the same loop on other kwargs
         "--frequency",
         "4",
         "0.01",
@@ -296,7 +298,8 @@ def test_gait_prior_plays_the_generator_alone_against_the_legs_at_rest(tmp_path)
         r"trot 0.01 Hz, extension 0.7, swing 0.3, classic: +(-?[0-9.]+)", result.stdout
     )
     assert abs(slow) < 1
-    assert len(re.findall(r"^trot ", result.stdout, re.M)) == 6  # 2 settings x 3 conditions
+    assert len(re.findall(r"^trot ", result.stdout, re.M)) == 2  # 2 settings x 1 condition
+    assert "tan2018" not in result.stdout  # the worlds not asked for are not played
     # A push of 1 mN is nothing; 300 N topples a robot standing still at the first push.
     taken = r"([0-9]+) pushes, ([0-9]+) falls"
     pushes = rf"legs at rest {taken}; default trot {taken}"

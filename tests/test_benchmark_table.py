@@ -6,6 +6,7 @@ import argparse
 import importlib
 import json
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +47,16 @@ def finished_run(tmp_path_factory):
     return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
 
 
+def keep_runs(run: Path, into: Path) -> None:
+    """benchmarks/keep_runs.py in this process (its refusal and its use as a script are
+    tested below): a script's start-up costs seconds, six times over."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        importlib.import_module("keep_runs").main([str(run), "--into", str(into)])
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+
+
 def test_keep_runs_keeps_what_judging_again_needs_and_nothing_bulky(finished_run, tmp_path):
     kept = run_script(
         "benchmarks/keep_runs.py", str(finished_run), "--into", "results/tiny", cwd=tmp_path
@@ -78,7 +89,7 @@ def test_keep_runs_refuses_an_unfinished_run_in_one_line(finished_run, tmp_path)
 
 def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_run, tmp_path):
     # Issue 22 ships SAC from a kept default run's final model: no checkpoints, no figure.
-    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "kept", cwd=tmp_path)
+    keep_runs(finished_run, tmp_path / "kept")
     kept = tmp_path / "kept" / "seed3"
     assert not RunFolder(kept).learning_curve.exists()
     shipped = tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1"
@@ -106,7 +117,7 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
 def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(
     finished_run, tmp_path, monkeypatch
 ):
-    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "kept", cwd=tmp_path)
+    keep_runs(finished_run, tmp_path / "kept")
     kept = RunFolder(tmp_path / "kept" / "seed3")
     report = shipping.select([kept], episodes=1, final_only=True)
     shipped = RunFolder(tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1")
@@ -137,7 +148,7 @@ def test_a_model_trained_on_from_a_kept_run_names_that_runs_command(finished_run
     # The shipped PPO came from a kept default run; a model trained on from one (-i) must
     # ship with the kept run's own command and seed (ship() writes origin_of() as its
     # provenance's started_from), not just the path it started from.
-    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "kept", cwd=tmp_path)
+    keep_runs(finished_run, tmp_path / "kept")
     kept = RunFolder(tmp_path / "kept" / "seed3")
     origin = shipping.origin_of(str(kept.zoo_model))
     assert origin["trained_agent"] == str(kept.zoo_model)
@@ -169,7 +180,7 @@ def table(monkeypatch, capsys):
 
 
 def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, tmp_path, table):
-    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/tiny", cwd=tmp_path)
+    keep_runs(finished_run, tmp_path / "r/tiny")
     report = RunFolder(tmp_path / "r" / "tiny" / "seed3").final_model_report()
     row = ["--row", f"tiny={tmp_path}/r/tiny/seed*", "--episodes", "1"]
 
@@ -208,10 +219,11 @@ def test_a_page_that_disagrees_with_its_runs_is_found_and_rewritten(table, tmp_p
     args = argparse.Namespace(
         episodes=20, report_seed=12345, rejudge=False, trust_pickle=False, stored_only=True
     )
-    page = REPO / "docs" / "results.md"
     (tmp_path / "docs").mkdir()
+    for table in module.TABLES.values():  # every page that holds a table
+        (tmp_path / table["page"]).write_text((REPO / table["page"]).read_text())
+    page = REPO / "docs" / "results.md"
     copy = tmp_path / "docs" / "results.md"
-    copy.write_text(page.read_text())
     assert module.docs_tables(args, tmp_path, write=False) == []  # control: a true copy
     row = next(line for line in page.read_text().splitlines() if line.startswith("| PPO, def"))
     copy.write_text(page.read_text().replace(row, row.replace("| 3 |", "| 4 |", 1)))
@@ -275,7 +287,7 @@ def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_
     )
     assert trained.returncode == 0, trained.stderr
     run = tmp_path / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
-    run_script("benchmarks/keep_runs.py", str(run), "--into", "r/ema", cwd=tmp_path)
+    keep_runs(run, tmp_path / "r/ema")
     kept = tmp_path / "r" / "ema" / "seed3"
     args = ["--episodes", "1"]
     average = table("--row", f"a={kept}", *args)
@@ -289,7 +301,7 @@ def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_
     assert len({r["mean"] for r in judged}) == 2
 
     # A run trained without the average has no live actor to tell apart: one line.
-    run_script("benchmarks/keep_runs.py", str(finished_run), "--into", "r/plain", cwd=tmp_path)
+    keep_runs(finished_run, tmp_path / "r/plain")
     refused = run_script(
         "benchmarks/minitaur_table.py",
         "--row",
