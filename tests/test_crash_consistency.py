@@ -351,12 +351,10 @@ def test_a_kill_between_an_evaluation_and_its_checkpoint_leaves_one_history(tmp_
     assert result.best_eval == embedded_evaluation(run.best_model)
 
 
-def test_a_run_killed_at_random_points_a_dozen_times_resumes_every_time(tmp_path):
+def test_a_run_killed_at_random_points_twenty_times_resumes_every_time(tmp_path):
     """Fault injection: SIGKILL at random moments (mid-step, mid-checkpoint, mid-eval),
-    then resume, 12 times (20 until the suite outgrew its 15 minutes; the windows the soak
-    once found are killed in on purpose by the aimed tests above). Children fork from a
-    forkserver that imported the package once, so a cycle costs a fraction of a second
-    rather than an interpreter start."""
+    then resume, 20 times. Children fork from a forkserver that imported the package
+    once, so a cycle costs a fraction of a second rather than an interpreter start."""
     config = ExperimentConfig.resolve(
         "sac",
         "ShortPendulum-v0",
@@ -372,7 +370,7 @@ def test_a_run_killed_at_random_points_a_dozen_times_resumes_every_time(tmp_path
     context = preloaded_forkserver()
     rng = random.Random(0)
     outcomes, progress = [], []
-    while outcomes.count(-signal.SIGKILL) < 12:
+    while outcomes.count(-signal.SIGKILL) < 20:
         before = max((steps for steps, _ in run.checkpoints()), default=0)
         child = context.Process(target=_resume_in_child, args=(str(run.path),))
         child.start()
@@ -398,7 +396,7 @@ def test_a_run_killed_at_random_points_a_dozen_times_resumes_every_time(tmp_path
         if child.exitcode == 0:
             break
     # The kills landed while training, not only while starting: checkpoints moved on.
-    assert len(set(progress)) >= 6, progress
+    assert len(set(progress)) >= 10, progress
     final = Experiment.resume(run.path, n_timesteps=SOAK_STEPS, verbose=0).run()
     assert final.status == "completed" and final.num_timesteps == SOAK_STEPS
     with np.load(run.evaluations) as data:
