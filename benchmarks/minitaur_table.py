@@ -179,7 +179,7 @@ def render(specs: list[tuple[str, str]], args: argparse.Namespace) -> tuple[str,
     lines, groups, missing = [HEADER], [], []
     for label, spec in specs:
         pattern, live_actor = spec.removesuffix(LIVE), spec.endswith(LIVE)
-        runs = [RunFolder(Path(p)) for p in sorted(glob(pattern)) if RunFolder.is_run(p)]
+        runs = run_folders(pattern)
         if not runs:
             missing.append(f"{label} ({pattern})")
             continue
@@ -231,9 +231,10 @@ def curve_cells(
     return cells
 
 
-def run_folders(patterns: str | list[str]) -> list[RunFolder]:
+def run_folders(patterns: str | list[str | Path]) -> list[RunFolder]:
+    """The run folders that globs match."""
     patterns = [patterns] if isinstance(patterns, str) else patterns
-    found = [Path(p) for pattern in patterns for p in sorted(glob(str(RESULTS / pattern)))]
+    found = [Path(p) for pattern in patterns for p in sorted(glob(str(pattern)))]
     return [RunFolder(p) for p in found if RunFolder.is_run(p)]
 
 
@@ -246,7 +247,9 @@ def render_curves(table: dict) -> str:
     lines = ["| " + " | ".join(columns) + " |", "|---" * len(columns) + "|"]
     for label, spec in table["rows"].items():
         medians = isinstance(spec, dict)
-        runs = run_folders(spec["median"] if medians else spec)
+        patterns = spec["median"] if medians else spec
+        patterns = [patterns] if isinstance(patterns, str) else patterns
+        runs = run_folders([RESULTS / pattern for pattern in patterns])
         if not runs:
             raise UsageError(f"tables.yml: no run folders for the row {label!r} ({spec})")
         seeds = [str(run.read_config()["seed"]) for run in runs]
