@@ -521,15 +521,11 @@ def test_load_last_checkpoint_skips_a_torn_newest_one(tmp_path):
         saved = run / "checkpoints" / f"rl_model_vecnormalize_100_steps{suffix}"
         shutil.copyfile(shipped / "MinitaurBulletEnv-v0" / f"vecnormalize{suffix}", saved)
     (run / "checkpoints" / "rl_model_200_steps.zip").write_bytes(b"PK\x03\x04 torn by a kill")
+    last_checkpoint = ["-f", "logs", "--algo", "ppo", "--env", "MinitaurBulletEnv-v0"]
+    last_checkpoint.append("--load-last-checkpoint")
     played = run_script(
         "evaluate.py",
-        "-f",
-        "logs",
-        "--algo",
-        "ppo",
-        "--env",
-        "MinitaurBulletEnv-v0",
-        "--load-last-checkpoint",
+        *last_checkpoint,
         "--episodes",
         "1",
         "--env-kwargs",
@@ -540,17 +536,7 @@ def test_load_last_checkpoint_skips_a_torn_newest_one(tmp_path):
     assert "rl_model_100_steps.zip" in played.stdout
     # With every checkpoint torn there is nothing to play: one line, not a traceback.
     (run / "checkpoints/rl_model_100_steps.zip").write_bytes(b"PK\x03\x04 torn too")
-    refused = run_script(
-        "evaluate.py",
-        "-f",
-        "logs",
-        "--algo",
-        "ppo",
-        "--env",
-        "MinitaurBulletEnv-v0",
-        "--load-last-checkpoint",
-        cwd=tmp_path,
-    )
+    refused = run_script("evaluate.py", *last_checkpoint, cwd=tmp_path)
     assert refused.returncode == 2
     assert error_lines(refused.stderr) == [
         f"evaluate.py: error: {Path('logs/ppo/MinitaurBulletEnv-v0_1')} has no readable checkpoint"
