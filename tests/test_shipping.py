@@ -64,6 +64,10 @@ def test_final_only_considers_the_final_models_alone(tmp_path, judged):
     # only the chosen model and each run's best and final are played on the report seeds
     played_on_report = {name for name, seed in calls if seed == REPORT_SEED}
     assert played_on_report == {"best_model.zip", "MinitaurBulletEnv-v0.zip"}
+    # ...each once: the chosen final model's report is the one its run already has
+    assert len(calls) == len(set(calls)) == 3, calls
+    assert report["chosen"]["report"] == report["runs"][str(run)]["final"]
+    assert report["chosen"]["report"] is not report["runs"][str(run)]["final"]  # no YAML alias
 
 
 def test_checkpoints_before_from_steps_are_not_candidates(tmp_path, judged):

@@ -125,13 +125,22 @@ def select(
         f"{select_episodes} deterministic episodes on selection seeds {select_seed}.., "
         f"{episodes} on report seeds {report_seed}.."
     )
+    judged: dict[tuple[str, int, int, str], dict[str, float]] = {}
+
+    def judged_once(model: Path, count: int, seed: int, label: str) -> dict[str, float]:
+        # Deterministic episodes of one model from one seed always read the same, and the
+        # chosen model is most often a run's best or final model, already played on the
+        # report seeds: a second playing (20 episodes of up to 1000 steps) adds nothing.
+        key = (str(model), count, seed, label)
+        if key not in judged:
+            judged[key] = judge(model, count, seed, conditions[label], trust_pickle=trust_pickle)
+        return dict(judged[key])  # a copy: a report written as YAML holds no aliases
+
     for run in runs:
         per_run = report["runs"][str(run)] = {}
         for name, model in (("best", run.best_model), ("final", run.final_model)):
             if model.is_file():
-                result = per_run[name] = judge(
-                    model, episodes, report_seed, trust_pickle=trust_pickle
-                )
+                result = per_run[name] = judged_once(model, episodes, report_seed, "")
                 log(f"{run}  {name:5s} model on report seeds: {_figures(result)}")
         if final_only:
             found = [run.final_model] if run.final_model.is_file() else []
@@ -139,8 +148,8 @@ def select(
             found = candidates(run, from_steps, only_steps)
         for model in found:
             results = {
-                label: judge(model, select_episodes, select_seed, kwargs, trust_pickle=trust_pickle)
-                for label, kwargs in conditions.items()
+                label: judged_once(model, select_episodes, select_seed, label)
+                for label in conditions
             }
             result = report["selection"][str(model)] = _combined(results)
             log(f"  candidate {model}: {_figures(result)} (selection seeds)")
@@ -151,8 +160,7 @@ def select(
         key=lambda m: (-report["selection"][m]["falls"], report["selection"][m]["mean"]),
     )
     reported = {
-        label: judge(Path(chosen), episodes, report_seed, kwargs, trust_pickle=trust_pickle)
-        for label, kwargs in conditions.items()
+        label: judged_once(Path(chosen), episodes, report_seed, label) for label in conditions
     }
     report["chosen"] = {"model": chosen, "report": reported.pop("")}
     if reported:
