@@ -536,7 +536,7 @@ def test_load_last_checkpoint_skips_a_torn_newest_one(tmp_path):
     assert "rl_model_100_steps.zip" in played.stdout
     # With every checkpoint torn there is nothing to play: one line, not a traceback.
     (run / "checkpoints/rl_model_100_steps.zip").write_bytes(b"PK\x03\x04 torn too")
-    refused = run_script("evaluate.py", *last_checkpoint, cwd=tmp_path)
+    refused = run_main(evaluate.main, *last_checkpoint, cwd=tmp_path)
     assert refused.returncode == 2
     assert error_lines(refused.stderr) == [
         f"evaluate.py: error: {Path('logs/ppo/MinitaurBulletEnv-v0_1')} has no readable checkpoint"

@@ -16,11 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import evaluate as evaluate_script
+import train
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy
 from minitaur_env.training.run_folder import EMBEDDED_STATISTICS
 from minitaur_env.training.safe_load import UntrustedPickle, safe_custom_objects
-from tests.scripts import TINY, error_lines, needs, run_script
+from tests.scripts import TINY, error_lines, needs, run_main, run_script
 
 # Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -95,8 +97,16 @@ def strip_embedded_statistics(model: Path) -> None:
 
 
 def evaluate(*args: str, cwd: Path):
-    return run_script(
-        "evaluate.py", *args, "--episodes", "1", "--env-kwargs", "max_episode_steps=20", cwd=cwd
+    # In this process: a pickle that ran would write its marker here as well, and the
+    # seven plays skip an interpreter's start each.
+    return run_main(
+        evaluate_script.main,
+        *args,
+        "--episodes",
+        "1",
+        "--env-kwargs",
+        "max_episode_steps=20",
+        cwd=cwd,
     )
 
 
@@ -164,7 +174,7 @@ def test_training_from_a_model_starts_an_empty_buffer_and_loads_no_pickle(run, t
     strip_embedded_statistics(model)
     stats = run / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
     stats.with_suffix(".json").unlink()
-    refused = run_script("train.py", *args, *TINY, cwd=tmp_path)
+    refused = run_main(train.main, *args, *TINY, cwd=tmp_path)
     assert refused.returncode == 2 and not marker.exists()
     assert "--trust-pickle" in error_lines(refused)[-1] and str(stats) in refused.stderr
     buffer.unlink()
@@ -305,7 +315,7 @@ def test_resume_refuses_a_pickled_replay_buffer_unless_trusted(checkpointed, tmp
         pickled.write_bytes(pickle.dumps(buffer))
         trap_pickle(pickled, marker)
         arrays.unlink()
-    refused = run_script("train.py", "--resume", str(run), "-n", "180", cwd=tmp_path)
+    refused = run_main(train.main, "--resume", str(run), "-n", "180", cwd=tmp_path)
     assert refused.returncode == 2 and not marker.exists()
     assert error_lines(refused)[-1] == (
         f"train.py: error: {run / 'checkpoints' / 'rl_model_replay_buffer_120_steps.pkl'}: "
@@ -427,7 +437,7 @@ def test_statistics_of_another_observation_shape_are_refused_at_load_and_resume(
     resumable = resumed_copy(checkpointed, tmp_path)
     statistics = resumable / "checkpoints" / "rl_model_vecnormalize_120_steps.json"
     statistics.write_text(json.dumps(short))
-    resumed = run_script("train.py", "--resume", str(resumable), "-n", "240", cwd=tmp_path)
+    resumed = run_main(train.main, "--resume", str(resumable), "-n", "240", cwd=tmp_path)
     assert resumed.returncode == 2 and error_lines(resumed) == [
         f"train.py: error: {statistics}: its VecNormalize statistics for obs_rms have shape "
         "(27,), the env's are (28,)"

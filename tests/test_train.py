@@ -18,6 +18,7 @@ import pytest
 import yaml
 from stable_baselines3 import PPO, SAC
 
+import evaluate
 import train
 from minitaur_env.training import UsageError
 from minitaur_env.training.algorithms import load_model
@@ -177,7 +178,7 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     assert action.shape == (8,)
     (run / "checkpoints" / "rl_model_200_steps.zip").unlink()  # as if killed before it
     # SBX pickles its flax parameters: resuming its checkpoint is the user's choice.
-    refused = run_script("train.py", "--resume", str(run), "-n", "250", cwd=tmp_path)
+    refused = run_main(train.main, "--resume", str(run), "-n", "250", cwd=tmp_path)
     assert refused.returncode == 2 and error_lines(refused)[-1].endswith(
         "would unpickle it, and a pickle can run code from the file; pass --trust-pickle "
         "if you trust where it came from"
@@ -194,7 +195,7 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     )
     assert final.replay_buffer.size() == 149 + 99  # the 150-step buffer was resumed
     model = str(run / "MinitaurBulletEnv-v0.zip")
-    refused = run_script("evaluate.py", "--model", model, "--episodes", "1", cwd=tmp_path)
+    refused = run_main(evaluate.main, "--model", model, "--episodes", "1", cwd=tmp_path)
     assert refused.returncode == 2 and "--trust-pickle" in refused.stderr  # flax is pickled
     evaluated = run_script(
         "evaluate.py", "--model", model, "--episodes", "1", "--trust-pickle", cwd=tmp_path
