@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import StopTrainingOnRewardThreshold
 
+import train
 from minitaur_env.training import Experiment, ExperimentConfig, UsageError
 from minitaur_env.training.hyperparams import algorithm_kwargs
-from tests.scripts import error_lines, run_script
+from tests.scripts import error_lines, run_main
 
 # Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
@@ -56,8 +57,8 @@ def test_a_bad_schedule_is_one_line(value):
 
 
 def test_train_rejects_a_bad_schedule_in_one_line(tmp_path):
-    result = run_script(
-        "train.py",
+    result = run_main(
+        train.main,
         "--algo",
         "ppo",
         "--env",

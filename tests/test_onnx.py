@@ -12,10 +12,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+import evaluate
 from minitaur_env.onnx_policy import OnnxPolicy
 from minitaur_env.training.evaluation import PRETRAINED_DIR, load_policy
 from minitaur_env.training.single_env import make_env
-from tests.scripts import REPO, error_lines, needs
+from tests.scripts import REPO, error_lines, needs, run_main
 
 # Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -155,12 +156,7 @@ def test_unsupported_policies_and_files_are_one_line(tmp_path):
 
     (tmp_path / "garbage.onnx").write_bytes(b"not a graph")
     for model in ("garbage.onnx", "absent.onnx"):
-        played = subprocess.run(
-            [sys.executable, str(REPO / "evaluate.py"), "--model", str(tmp_path / model)],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        played = run_main(evaluate.main, "--model", str(tmp_path / model), cwd=tmp_path)
         assert played.returncode == 2
         (line,) = error_lines(played)
         assert line.startswith("evaluate.py: error: ")

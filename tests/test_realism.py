@@ -8,9 +8,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+import evaluate
 from minitaur_env import MinitaurBulletEnv
 from minitaur_env.realism import RealismProbe
-from tests.scripts import REPO, error_lines, run_script
+from tests.scripts import REPO, error_lines, run_main
 
 
 def probe_steps(env: gym.Env, actions, seed: int = 0) -> list[dict]:
@@ -77,16 +78,17 @@ def test_feet_slip_more_on_ice_than_on_the_classic_ground():
 
 def test_evaluate_reports_the_realism_rows_and_refuses_a_model_without_a_motor_model(tmp_path):
     model = REPO / "pretrained/ppo/MinitaurBulletEnv-v0_1/MinitaurBulletEnv-v0.zip"
-    result = run_script(
-        "evaluate.py", "--model", str(model), "--episodes", "1", "--realism", cwd=tmp_path
+    # In this process (evaluate.main): three plays without three interpreter starts.
+    result = run_main(
+        evaluate.main, "--model", str(model), "--episodes", "1", "--realism", cwd=tmp_path
     )
     assert result.returncode == 0, result.stderr
     for label in ("steps at a torque limit", "steps at a velocity limit", "foot slip"):
         assert label in result.stdout
-    plain = run_script("evaluate.py", "--model", str(model), "--episodes", "1", cwd=tmp_path)
+    plain = run_main(evaluate.main, "--model", str(model), "--episodes", "1", cwd=tmp_path)
     assert "foot slip" not in plain.stdout
-    refused = run_script(
-        "evaluate.py",
+    refused = run_main(
+        evaluate.main,
         "--model",
         str(model),
         "--episodes",
