@@ -331,20 +331,21 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _build_world(self) -> None:
         sim = self._live_sim()
-        sim.reset_world(self.physics_time_step, self._solver_iterations, GRAVITY)
-        self._build_scene(sim)
-        self._robot = Minitaur(
-            sim,
-            self.physics_time_step,
-            motor_control=self.motor_control,
-            motor_kp=self._kp,
-            motor_kd=self._kd,
-            overheat_protection=self.motor_overheat_protection,
-            motor_velocity_limit=self.motor_velocity_limit,
-            self_collision=self.self_collision,
-            on_rack=self.on_rack,
-            urdf_root=self.urdf_root,
-        )
+        with sim.rendering_paused():
+            sim.reset_world(self.physics_time_step, self._solver_iterations, GRAVITY)
+            self._build_scene(sim)
+            self._robot = Minitaur(
+                sim,
+                self.physics_time_step,
+                motor_control=self.motor_control,
+                motor_kp=self._kp,
+                motor_kd=self._kd,
+                overheat_protection=self.motor_overheat_protection,
+                motor_velocity_limit=self.motor_velocity_limit,
+                self_collision=self.self_collision,
+                on_rack=self.on_rack,
+                urdf_root=self.urdf_root,
+            )
         self._start_state = None
         self._settled_state = None
         if not self.hard_reset and self.randomize_dynamics:

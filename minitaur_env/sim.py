@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import pybullet
@@ -63,6 +63,24 @@ class BulletSim:
             self.close()
 
     # -- world --------------------------------------------------------------
+    @contextlib.contextmanager
+    def rendering_paused(self) -> Iterator[None]:
+        """In the GUI, draw nothing while the world is (re)built, as the classic env does:
+        the window otherwise redraws as each body loads (seconds a URDF under a software
+        OpenGL such as Xvfb's). Headless, it changes nothing."""
+        if not self.gui:
+            yield
+            return
+        pybullet.configureDebugVisualizer(
+            pybullet.COV_ENABLE_RENDERING, 0, physicsClientId=self._id
+        )
+        try:
+            yield
+        finally:
+            pybullet.configureDebugVisualizer(
+                pybullet.COV_ENABLE_RENDERING, 1, physicsClientId=self._id
+            )
+
     def reset_world(self, time_step: float, solver_iterations: int, gravity: float) -> None:
         """Empty the world and set the physics parameters (the classic order)."""
         cid = self._id
