@@ -1,4 +1,5 @@
-"""evaluate.py end to end, in subprocesses, on a model trained for a few hundred steps."""
+"""evaluate.py end to end on a model trained for a few hundred steps: as a user runs it (a
+subprocess) where the process matters, else through its main() in this process."""
 
 from __future__ import annotations
 
@@ -88,10 +89,10 @@ def test_statistics_table_and_json(workdir, best_model):
 
 
 def test_same_seed_same_statistics_and_stochastic_mode(workdir, best_model):
-    args = ["evaluate.py", "--model", str(best_model), "--episodes", "2", *SHORT]
-    first = run_script(*args, "--json", "a.json", cwd=workdir)
-    second = run_script(*args, "--json", "b.json", cwd=workdir)
-    stochastic = run_script(*args, "--stochastic", "--json", "c.json", cwd=workdir)
+    args = ["--model", str(best_model), "--episodes", "2", *SHORT]
+    first = run_main(evaluate.main, *args, "--json", "a.json", cwd=workdir)
+    second = run_main(evaluate.main, *args, "--json", "b.json", cwd=workdir)
+    stochastic = run_main(evaluate.main, *args, "--stochastic", "--json", "c.json", cwd=workdir)
     a, b, c = (json.loads((workdir / f"{n}.json").read_text()) for n in "abc")
     assert first.returncode == second.returncode == stochastic.returncode == 0
     assert a["per_episode"] == b["per_episode"]
@@ -371,8 +372,8 @@ def test_a_quietly_truncated_video_replaces_nothing(tmp_path, monkeypatch):
 
 
 def test_default_video_name_goes_to_videos(workdir, best_model):
-    result = run_script(
-        "evaluate.py",
+    result = run_main(
+        evaluate.main,
         "--model",
         str(best_model),
         "--episodes",
@@ -498,10 +499,10 @@ def test_exp_id_picks_that_run_of_the_log_folder(tmp_path):
         "max_episode_steps=20",
     ]
     for number in (1, 2):
-        played = run_script("evaluate.py", *common, "--exp-id", str(number), cwd=tmp_path)
+        played = run_main(evaluate.main, *common, "--exp-id", str(number), cwd=tmp_path)
         assert played.returncode == 0, played.stderr
         assert f"MinitaurBulletEnv-v0_{number}/MinitaurBulletEnv-v0.zip" in played.stdout
-    missing = run_script("evaluate.py", *common, "--exp-id", "3", cwd=tmp_path)
+    missing = run_main(evaluate.main, *common, "--exp-id", "3", cwd=tmp_path)
     assert error_lines(missing) == [
         "evaluate.py: error: no run MinitaurBulletEnv-v0_3 under logs/ppo/"
     ]
@@ -523,8 +524,8 @@ def test_load_last_checkpoint_skips_a_torn_newest_one(tmp_path):
     (run / "checkpoints" / "rl_model_200_steps.zip").write_bytes(b"PK\x03\x04 torn by a kill")
     last_checkpoint = ["-f", "logs", "--algo", "ppo", "--env", "MinitaurBulletEnv-v0"]
     last_checkpoint.append("--load-last-checkpoint")
-    played = run_script(
-        "evaluate.py",
+    played = run_main(
+        evaluate.main,
         *last_checkpoint,
         "--episodes",
         "1",

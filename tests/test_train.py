@@ -206,12 +206,12 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
 
 def test_video_recording_does_not_change_training_nor_stop_it_on_a_write_error(tmp_path):
     common = ["-n", "150", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0", *TINY]
-    plain = run_script("train.py", *common, cwd=tmp_path)
+    plain = run_main(train.main, *common, cwd=tmp_path)
     # The shared videos/ folder cannot be made (a file has its name): each video's copy
     # there fails, which costs that copy, not the run.
     (tmp_path / "videos").write_text("a file where the shared videos folder would go")
-    filmed = run_script(
-        "train.py", *common, "--video-freq", "60", "--video-length", "10", cwd=tmp_path
+    filmed = run_main(
+        train.main, *common, "--video-freq", "60", "--video-length", "10", cwd=tmp_path
     )
     assert plain.returncode == 0 and filmed.returncode == 0, filmed.stderr
     skipped = [line.split(":")[0] for line in filmed.stderr.splitlines() if "skipped" in line]
@@ -248,7 +248,7 @@ def test_kill_9_then_resume_continues_steps_and_replay_buffer(tmp_path):
     )
     assert 200 <= saved < 600
 
-    result = run_script("train.py", "--resume", str(run), cwd=tmp_path)
+    result = run_main(train.main, "--resume", str(run), cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert "(from " in result.stdout
     resumed_from = int(result.stdout.split("(from ")[1].split(")")[0])
@@ -423,7 +423,7 @@ def test_an_env_failing_in_a_worker_ends_the_run_with_one_line_and_a_checkpoint(
 
 def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
     args = ["-n", "100", *FAST_SAC, "--eval-freq", "0", "--save-freq", "50", *TINY]
-    assert run_script("train.py", *args, cwd=tmp_path).returncode == 0
+    assert run_main(train.main, *args, cwd=tmp_path).returncode == 0
     run = str(run_dir_of(tmp_path))
     written = [
         run_dir_of(tmp_path) / name
@@ -448,8 +448,8 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
         ], refused.stderr
         # a refused resume leaves the run's settings as they were
         assert [path.read_bytes() for path in written] == before, flags
-    extended = run_script(
-        "train.py",
+    extended = run_main(
+        train.main,
         "--resume",
         run,
         "-n",
@@ -468,8 +468,8 @@ def test_resume_extends_with_n_and_refuses_contradicting_flags(tmp_path):
 
 
 def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
-    result = run_script(
-        "train.py",
+    result = run_main(
+        train.main,
         "-n",
         "400",
         "--hyperparams",
@@ -495,8 +495,8 @@ def test_nan_stops_the_run_and_keeps_good_checkpoints(tmp_path):
 
 
 def test_generic_on_cartpole_with_ppo(tmp_path):
-    result = run_script(
-        "train.py",
+    result = run_main(
+        train.main,
         "--algo",
         "ppo",
         "--env",
@@ -530,8 +530,8 @@ def test_generic_on_cartpole_with_ppo(tmp_path):
     assert (run / "CartPole-v1" / "vecnormalize.pkl").is_file()
     assert (run / "best_model_vecnormalize.pkl").is_file()
     assert (run / "checkpoints" / "rl_model_vecnormalize_128_steps.pkl").is_file()
-    evaluated = run_script(
-        "evaluate.py",
+    evaluated = run_main(
+        evaluate.main,
         "--model",
         str(run / "best_model.zip"),
         "--episodes",
@@ -652,8 +652,8 @@ def test_runs_started_together_get_their_own_folders(tmp_path):
 
 def test_an_unwritable_tensorboard_folder_is_refused_before_training(tmp_path):
     (tmp_path / "a-file").write_text("")
-    result = run_script(
-        "train.py",
+    result = run_main(
+        train.main,
         "--env",
         "Pendulum-v1",
         "-n",
