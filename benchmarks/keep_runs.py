@@ -4,6 +4,8 @@ Keeps what anyone needs to judge a run again and to redraw its curves: the final
 the zoo's layout (``<env>.zip``, ``<env>/vecnormalize.pkl`` and the zoo's settings), the
 run's ``config.yml``, ``command.txt``, ``evaluations.npz``, monitor files and, for a sweep
 trial, ``trial.yml``. Checkpoints, replay buffers and the best model stay behind.
+``--curves-only`` keeps a run stopped before its end (a screen) without a model: what a
+"curves" table of ``tables.yml`` reads.
 
     python benchmarks/keep_runs.py logs/sweeps/NAME/runs/* --into benchmarks/results/NAME
 """
@@ -26,16 +28,23 @@ def run_folders(path: Path) -> list[RunFolder]:
     return RunFolder.found_under(path)
 
 
-def keep(run: RunFolder, destination: Path) -> None:
-    if not run.zoo_model.is_file():
-        sys.exit(f"keep_runs.py: {run} has no final model {run.zoo_model.name}; unfinished?")
+def keep(run: RunFolder, destination: Path, curves_only: bool = False) -> None:
+    if not curves_only and not run.zoo_model.is_file():
+        sys.exit(
+            f"keep_runs.py: {run} has no final model {run.zoo_model.name}; unfinished? "
+            "(--curves-only keeps a stopped run's evaluations)"
+        )
+    if not run.evaluations.is_file():
+        sys.exit(f"keep_runs.py: {run} has no {run.evaluations.name}: nothing to keep")
     if destination.exists():
         shutil.rmtree(destination)
     destination.mkdir(parents=True)
-    for source in (run.config, run.command, run.evaluations, run.zoo_model):
+    files = [run.config, run.command, run.evaluations]
+    for source in files if curves_only else [*files, run.zoo_model]:
         shutil.copy2(source, destination / source.name)
     kept = RunFolder(destination)  # its env name comes from the copied config.yml
-    shutil.copytree(run.zoo_dir, kept.zoo_dir)
+    if not curves_only:
+        shutil.copytree(run.zoo_dir, kept.zoo_dir)
     shutil.copytree(run.monitor_dir, kept.monitor_dir)
     trial = run.path.parents[1] / TRIAL_FILE  # <trial>/<algo>/<env>_N
     if trial.is_file():
@@ -46,6 +55,11 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path, help="run folders or sweep trial folders")
     parser.add_argument("--into", type=Path, required=True, help="e.g. benchmarks/results/NAME")
+    parser.add_argument(
+        "--curves-only",
+        action="store_true",
+        help="keep runs stopped before their end: evaluations and monitors, no model",
+    )
     args = parser.parse_args(argv)
     found = [run for path in args.runs for run in run_folders(path)]
     if not found:
@@ -54,7 +68,7 @@ def main(argv: list[str] | None = None) -> None:
     if len(set(seeds)) != len(seeds):
         sys.exit(f"keep_runs.py: two runs share a seed ({sorted(seeds)}); keep them apart")
     for run, seed in zip(found, seeds, strict=True):
-        keep(run, args.into / f"seed{seed}")
+        keep(run, args.into / f"seed{seed}", args.curves_only)
         print(f"{run} -> {args.into / f'seed{seed}'}")
 
 

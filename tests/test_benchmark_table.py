@@ -6,6 +6,7 @@ import argparse
 import importlib
 import json
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -47,12 +48,12 @@ def finished_run(tmp_path_factory):
     return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
 
 
-def keep_runs(run: Path, into: Path) -> None:
+def keep_runs(run: Path, into: Path, *flags: str) -> None:
     """benchmarks/keep_runs.py in this process (its refusal and its use as a script are
     tested below): a script's start-up costs seconds, six times over."""
     sys.path.insert(0, str(REPO / "benchmarks"))
     try:
-        importlib.import_module("keep_runs").main([str(run), "--into", str(into)])
+        importlib.import_module("keep_runs").main([str(run), "--into", str(into), *flags])
     finally:
         sys.path.remove(str(REPO / "benchmarks"))
 
@@ -82,9 +83,30 @@ def test_keep_runs_refuses_an_unfinished_run_in_one_line(finished_run, tmp_path)
     )
     assert refused.returncode == 1
     assert error_lines(refused) == [
-        f"keep_runs.py: {unfinished} has no final model MinitaurBulletEnv-v0.zip; unfinished?"
+        f"keep_runs.py: {unfinished} has no final model MinitaurBulletEnv-v0.zip; unfinished? "
+        "(--curves-only keeps a stopped run's evaluations)"
     ]
     assert not (tmp_path / "results").exists()
+
+
+def test_keep_runs_keeps_a_stopped_runs_curves_without_a_model(finished_run, tmp_path):
+    stopped = tmp_path / "logs" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(finished_run, stopped, ignore=shutil.ignore_patterns("MinitaurBulletEnv-v0*"))
+    keep_runs(stopped, tmp_path / "kept", "--curves-only")
+    folder = tmp_path / "kept" / "seed3"
+    names = sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
+    assert {"config.yml", "command.txt", "evaluations.npz"} <= set(names)
+    assert any(n.startswith("monitor/") for n in names)
+    assert not any(n.startswith(("checkpoints/", "MinitaurBulletEnv-v0")) for n in names)
+    with (
+        np.load(folder / "evaluations.npz") as kept,
+        np.load(finished_run / "evaluations.npz") as run,
+    ):
+        assert kept["timesteps"].tolist() == run["timesteps"].tolist() == [80, 160]
+    (stopped / "evaluations.npz").unlink()  # stopped before its first evaluation
+    with pytest.raises(SystemExit, match=re.escape("has no evaluations.npz: nothing to keep")):
+        keep_runs(stopped, tmp_path / "again", "--curves-only")
+    assert not (tmp_path / "again").exists()
 
 
 def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_run, tmp_path):
