@@ -12,8 +12,11 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
+import evaluate
+import train
 from minitaur_env import MinitaurBulletEnv, Trot, TrottingGait
-from tests.scripts import needs, run_script
+from minitaur_env.package import main as package_main
+from tests.scripts import needs, run_main
 
 STILL = np.zeros(11)
 
@@ -140,8 +143,8 @@ def test_bad_actions_are_refused_before_they_reach_the_robot(action, message):
 
 def test_a_gait_prior_policy_trains_plays_and_packages_with_its_generator(tmp_path):
     needs("huggingface_hub")
-    trained = run_script(
-        "train.py",
+    trained = run_main(
+        train.main,
         "--algo",
         "ppo",
         "--env",
@@ -163,9 +166,8 @@ def test_a_gait_prior_policy_trains_plays_and_packages_with_its_generator(tmp_pa
     )
     assert trained.returncode == 0, trained.stderr
     run = tmp_path / "logs" / "ppo" / "MinitaurBulletTrot-v0_1"
-    packaged = run_script(
-        "-m",
-        "minitaur_env.package",
+    packaged = run_main(
+        package_main,
         str(run / "MinitaurBulletTrot-v0.zip"),
         "-o",
         "hub",
@@ -187,8 +189,8 @@ def test_a_gait_prior_policy_trains_plays_and_packages_with_its_generator(tmp_pa
     env.close()
     assert "the gait prior's 11 entries" in card  # ONNX users learn the generator runs in the env
     # The ONNX actor plays on the same env through evaluate.py (config.yml beside it).
-    played = run_script(
-        "evaluate.py",
+    played = run_main(
+        evaluate.main,
         "--model",
         str(tmp_path / "hub/ppo-MinitaurBulletTrot-v0/policy.onnx"),
         "--episodes",
