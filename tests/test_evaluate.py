@@ -18,6 +18,7 @@ import yaml
 from stable_baselines3 import PPO
 
 import evaluate
+from minitaur_env.package import main as package_main
 from minitaur_env.training.video import read_video
 from tests.scripts import REPO, TINY, error_lines, needs, run_main, run_script
 
@@ -199,23 +200,16 @@ def test_the_zoos_record_video_runs_through_minitaur_env_zoo(workdir):
 
 def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, best_model):
     hub = needs("huggingface_hub")
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "minitaur_env.package",
-            str(best_model.parent),
-            "-o",
-            "hub",
-            "--episodes",
-            "2",
-            "--video-steps",
-            "20",
-        ],
+    result = run_main(
+        package_main,
+        str(best_model.parent),
+        "-o",
+        "hub",
+        "--episodes",
+        "2",
+        "--video-steps",
+        "20",
         cwd=workdir,
-        capture_output=True,
-        text=True,
-        timeout=300,
     )
     assert result.returncode == 0, result.stderr[-2000:]
     folder = workdir / "hub" / "sac-MinitaurBulletEnv-v0"
@@ -248,8 +242,8 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
     frames, _ = read_video(folder / "replay.mp4")
     assert len(frames) == 5 and frames.std() > 10  # 20 steps at 100 Hz, 25 fps: every 4th
     # The packaged zip plays with its statistics, found under the Hub's file name.
-    played = run_script(
-        "evaluate.py",
+    played = run_main(
+        evaluate.main,
         "--model",
         str(folder / "sac-MinitaurBulletEnv-v0.zip"),
         "--episodes",
@@ -258,12 +252,7 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
         cwd=workdir,
     )
     assert played.returncode == 0 and "observations normalized" in played.stdout
-    missing = subprocess.run(
-        [sys.executable, "-m", "minitaur_env.package", "no/such/run"],
-        cwd=workdir,
-        capture_output=True,
-        text=True,
-    )
+    missing = run_main(package_main, "no/such/run", cwd=workdir)
     assert error_lines(missing.stderr) == [
         "python -m minitaur_env.package: error: model file not found: no/such/run"
     ]
