@@ -12,16 +12,25 @@ import re
 import shlex
 import subprocess
 import sys
+from typing import Any
 
 import pytest
 
 from minitaur_env.training.evaluation import pretrained_models
-from tests.scripts import REPO, error_lines, needs, run_script
+from tests.scripts import REPO, error_lines, needs, run_main, run_script
 
 # Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1200)]
 
 NUMBER = r"([0-9.]+)"
+
+
+def benchmark_module(name: str) -> Any:
+    """benchmarks/<name>.py imported as a module (benchmarks/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def figure(pattern: str, text: str) -> list[float]:
@@ -148,9 +157,7 @@ def test_robustness_loads_no_pickle_unless_trusted_and_says_which_flag(tmp_path)
 
 
 def test_robustness_judges_every_shipped_policy_and_refuses_a_label_twice(capsys):
-    spec = importlib.util.spec_from_file_location("robustness", REPO / "benchmarks/robustness.py")
-    robustness = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(robustness)
+    robustness = benchmark_module("robustness")
     shipped = robustness.shipped_policies()
     assert sorted(shipped.values()) == sorted(model for _, model in pretrained_models())
     assert sum(model.parents[1].name == "ppo" for model in shipped.values()) >= 2  # two PPOs
@@ -183,11 +190,7 @@ def test_threads_under_load_gives_the_default_variant_torchs_real_default(monkey
         env=clean,
         check=True,
     ).stdout.strip()
-    spec = importlib.util.spec_from_file_location(
-        "threads", REPO / "benchmarks/threads_under_load.py"
-    )
-    benchmark = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(benchmark)
+    benchmark = benchmark_module("threads_under_load")
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     rate, threads = benchmark.measure(0, steps=16, warmup=64, untimed=8)
     assert rate > 0 and threads == int(default)
@@ -375,7 +378,8 @@ def test_push_bound_without_training_maps_the_zero_action_by_force_and_direction
 def test_push_bound_refuses_a_negative_budget_and_directions_without_forces(
     tmp_path, arguments, message
 ):
-    result = run_script("benchmarks/push_bound.py", *arguments, cwd=tmp_path)
+    # In-process: the script's own start-up is tested where it trains (above).
+    result = run_main(benchmark_module("push_bound").main, *arguments, cwd=tmp_path)
     assert result.returncode == 2
     assert message in result.stderr.strip().splitlines()[-1]
     assert not list(tmp_path.iterdir())
@@ -400,9 +404,7 @@ class ScriptedPushes:
 
 
 def test_push_bound_blames_a_fall_on_the_pushes_only_after_one_began():
-    spec = importlib.util.spec_from_file_location("push_bound", REPO / "benchmarks/push_bound.py")
-    push_bound = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(push_bound)
+    push_bound = benchmark_module("push_bound")
     episodes = [
         ([False, True, True, False, True], True),  # two pushes, then a fall: one survived
         ([False, False], True),  # a fall with no push: the policy's own

@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 import yaml
 
+from minitaur_env.ship import main as ship_main
 from minitaur_env.training import UsageError, shipping
 from minitaur_env.training.aggregate import RunCurve, iqm_with_ci
 from minitaur_env.training.run_folder import RunFolder
-from tests.scripts import REPO, TINY, error_lines, run_script
+from tests.scripts import REPO, TINY, error_lines, run_main, run_script
 
 # Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
@@ -115,9 +116,9 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
     kept = tmp_path / "kept" / "seed3"
     assert not RunFolder(kept).learning_curve.exists()
     shipped = tmp_path / "pretrained" / "sac" / "MinitaurBulletEnv-v0_1"
-    result = run_script(
-        "-m",
-        "minitaur_env.ship",
+    # In-process: the command's own start-up is tested where train.py and evaluate.py run.
+    result = run_main(
+        ship_main,
         str(kept),
         "--final-only",
         "--episodes",
@@ -153,7 +154,9 @@ def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(shipping, "export_onnx", full_disk)  # after the zip is written
-    other = shipping.select([kept], episodes=1, final_only=True, report_seed=777)
+    # Another report to ship over it: the same one relabelled, as what ship() writes is
+    # the question here, not another minute of playing the Minitaur.
+    other = {**report, "report_seed": 777}
     with pytest.raises(OSError, match="No space left"):
         shipping.ship(other, shipped.path)
     after = {
@@ -206,9 +209,8 @@ def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, t
     report = RunFolder(tmp_path / "r" / "tiny" / "seed3").final_model_report()
     row = ["--row", f"tiny={tmp_path}/r/tiny/seed*", "--episodes", "1"]
 
-    first = run_script("benchmarks/minitaur_table.py", *row, cwd=tmp_path)
-    assert first.returncode == 0, first.stderr
-    line = next(line for line in first.stdout.splitlines() if line.startswith("| tiny"))
+    first = table(*row)
+    line = next(line for line in first.splitlines() if line.startswith("| tiny"))
     judged = json.loads(report.read_text())
     assert judged["episodes"] == 1 and judged["report_seed"] == 12345
     assert f"| {judged['mean']:.2f} |" in line  # median of one seed
