@@ -179,21 +179,28 @@ def figure_line(pattern: str, text: str) -> str:
     return found.group(1)
 
 
+def torchs_default_threads() -> int:
+    """What torch.get_num_threads() gives a process with no *_NUM_THREADS set."""
+    clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    return int(
+        subprocess.run(
+            [sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
+            capture_output=True,
+            text=True,
+            env=clean,
+            check=True,
+        ).stdout
+    )
+
+
 def test_threads_under_load_gives_the_default_variant_torchs_real_default(monkeypatch):
     # Our own runs export OMP_NUM_THREADS=1; the "torch's default" variant must not inherit
     # it, or both rows of the table would be one thread.
-    clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
-    default = subprocess.run(
-        [sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
-        capture_output=True,
-        text=True,
-        env=clean,
-        check=True,
-    ).stdout.strip()
+    default = torchs_default_threads()
     benchmark = benchmark_module("threads_under_load")
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     rate, threads = benchmark.measure(0, steps=16, warmup=64, untimed=8)
-    assert rate > 0 and threads == int(default)
+    assert rate > 0 and threads == default
 
 
 def assert_ratio_of_rounded(ratio: float, rate: float, baseline: float, rate_step: float) -> None:
@@ -208,14 +215,7 @@ def assert_ratio_of_rounded(ratio: float, rate: float, baseline: float, rate_ste
 
 def test_training_speed_times_every_variant_and_its_baseline_at_torchs_default(tmp_path):
     needs("sbx")
-    clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
-    default = subprocess.run(
-        [sys.executable, "-c", "import torch; print(torch.get_num_threads())"],
-        capture_output=True,
-        text=True,
-        env=clean,
-        check=True,
-    ).stdout.strip()
+    default = torchs_default_threads()
     result = subprocess.run(
         [
             sys.executable,
