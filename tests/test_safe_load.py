@@ -61,8 +61,9 @@ def trap_pickle(path: Path, marker: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("trained")
+def checkpointed(tmp_path_factory) -> Path:
+    """A run with checkpoints at 60 and 120 steps, to resume."""
+    root = tmp_path_factory.mktemp("checkpointed")
     result = run_script(
         "train.py",
         "-n",
@@ -71,7 +72,7 @@ def trained(tmp_path_factory) -> Path:
         "--eval-freq",
         "0",
         "--save-freq",
-        "0",
+        "60",
         *TINY,
         cwd=root,
     )
@@ -80,10 +81,10 @@ def trained(tmp_path_factory) -> Path:
 
 
 @pytest.fixture
-def run(trained: Path, tmp_path: Path) -> Path:
+def run(checkpointed: Path, tmp_path: Path) -> Path:
     """A fresh copy of the run folder, to booby-trap."""
     copy = tmp_path / "downloaded" / "MinitaurBulletEnv-v0_1"
-    shutil.copytree(trained, copy)
+    shutil.copytree(checkpointed, copy)
     return copy
 
 
@@ -110,11 +111,13 @@ def evaluate(*args: str, cwd: Path):
     )
 
 
-def test_run_folders_carry_pickle_free_statistics_that_act_as_the_pickle(trained):
-    stats = trained / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
+def test_run_folders_carry_pickle_free_statistics_that_act_as_the_pickle(checkpointed):
+    stats = checkpointed / "MinitaurBulletEnv-v0" / "vecnormalize.pkl"
     assert stats.with_suffix(".json").is_file()
-    safe = load_policy(trained / "MinitaurBulletEnv-v0.zip", device="cpu")
-    trusted = load_policy(trained / "MinitaurBulletEnv-v0.zip", device="cpu", trust_pickle=True)
+    safe = load_policy(checkpointed / "MinitaurBulletEnv-v0.zip", device="cpu")
+    trusted = load_policy(
+        checkpointed / "MinitaurBulletEnv-v0.zip", device="cpu", trust_pickle=True
+    )
     obs = np.random.default_rng(0).normal(scale=5, size=(20, 28)).astype(np.float32)
     for o in obs:
         np.testing.assert_array_equal(safe.act(o), trusted.act(o))
@@ -241,26 +244,6 @@ def test_packaging_runs_no_code_from_the_files(run, tmp_path):
     np.testing.assert_array_equal(published.obs_rms.mean, source["obs_rms"]["mean"])
     pickle.loads(stats.read_bytes())  # control: the source itself would have run the trap
     assert marker.read_text() == "ran"
-
-
-@pytest.fixture(scope="module")
-def checkpointed(tmp_path_factory) -> Path:
-    """A run with checkpoints at 60 and 120 steps, to resume."""
-    root = tmp_path_factory.mktemp("checkpointed")
-    result = run_script(
-        "train.py",
-        "-n",
-        "120",
-        *FAST_SAC,
-        "--eval-freq",
-        "0",
-        "--save-freq",
-        "60",
-        *TINY,
-        cwd=root,
-    )
-    assert result.returncode == 0, result.stderr
-    return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
 
 
 def resumed_copy(checkpointed: Path, tmp_path: Path) -> Path:
