@@ -26,7 +26,7 @@ def test_something_is_shipped_with_provenance():
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
 def test_shipped_policy_walks_forward_without_falling(path):
-    policy = load_policy(path, device="cpu")
+    policy = load_policy(str(path), device="cpu")  # a path as text, as a notebook passes it
     env = make_env(policy.env_id, policy.env_kwargs)
     obs, info = env.reset(seed=2024)
     start = info["base_position"][0]

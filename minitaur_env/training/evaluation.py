@@ -73,12 +73,16 @@ class LoadedPolicy:
 
 
 def load_policy(
-    model_path: Path, algo: str | None = None, device: str = "auto", trust_pickle: bool = False
+    model_path: str | Path,
+    algo: str | None = None,
+    device: str = "auto",
+    trust_pickle: bool = False,
 ) -> LoadedPolicy | OnnxPolicy:
     """A model zip with its VecNormalize statistics, or an exported ``.onnx`` policy.
 
     Runs no code from the files unless ``trust_pickle`` (see ``safe_load``).
     """
+    model_path = Path(model_path)
     if model_path.suffix == ".onnx":
         policy = OnnxPolicy(model_path)
         if algo is not None and algo != policy.algo:
