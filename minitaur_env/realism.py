@@ -11,7 +11,10 @@ ceiling, run near their no-load speed, or feet that skid instead of pushing. The
   at this episode's battery voltage (voltage / torque constant), where back-EMF leaves
   almost no torque;
 - ``foot_slip``: the mean horizontal speed (m/s) of the lower legs' points in contact
-  with the ground, NaN when none touches it.
+  with the ground, NaN when none touches it;
+- ``actions_at_limit``: the share of the step's 8 actions, as the leg model takes them
+  (after ``action_gain``), within 5 % of the range's ends: bang-bang use of the swing
+  and extension ranges.
 
 Motor figures are sampled at the last physics step of each control step. The probe
 costs a contact query and a few link states per step, so it is opt-in
@@ -28,6 +31,7 @@ import numpy as np
 from minitaur_env.motor import SATURATION_CURRENT, TORQUE_CONSTANT
 
 VELOCITY_LIMIT_SHARE = 0.9  # of the no-load speed
+ACTION_LIMIT_SHARE = 0.95  # of the action range's half-width
 
 
 class RealismProbe(gym.Wrapper):
@@ -44,6 +48,9 @@ class RealismProbe(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         observation, reward, terminated, truncated, info = self.env.step(action)
         info.update(measure(self.env.unwrapped))
+        gain = getattr(self.env.unwrapped, "action_gain", 1.0)
+        commanded = np.clip(gain * np.asarray(action, dtype=float), -1.0, 1.0)
+        info["actions_at_limit"] = float(np.mean(np.abs(commanded) >= ACTION_LIMIT_SHARE))
         return observation, reward, terminated, truncated, info
 
 

@@ -36,6 +36,16 @@ def test_a_standing_robot_neither_slips_nor_saturates_and_bang_bang_commands_sat
     infos = probe_steps(MinitaurBulletEnv(randomize_dynamics=False, on_rack=True), flipping)
     assert sum(info["motors_at_torque_limit"] > 0 for info in infos) > 20
     assert all(info["motors_at_velocity_limit"] == 0 for info in infos)  # far from 168 rad/s
+    assert all(info["actions_at_limit"] == 1.0 for info in infos)
+    assert all(info["actions_at_limit"] == 0.0 for info in standing)
+
+
+def test_actions_at_a_limit_count_what_the_leg_model_takes():
+    half = [np.array([0.5, -0.5, 0.5, -0.5, 0.0, 0.0, 0.9, 0.96])] * 3
+    plain = probe_steps(MinitaurBulletEnv(randomize_dynamics=False), half)
+    assert [info["actions_at_limit"] for info in plain] == [1 / 8] * 3  # only 0.96
+    gained = probe_steps(MinitaurBulletEnv(randomize_dynamics=False, action_gain=2.0), half)
+    assert [info["actions_at_limit"] for info in gained] == [6 / 8] * 3  # all but the zeros
 
 
 def test_the_velocity_limit_follows_the_battery_voltage():

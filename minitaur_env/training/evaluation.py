@@ -279,6 +279,7 @@ def run_episodes(
         totals = dict.fromkeys(REWARD_TERMS, 0.0)
         limits = {"at_torque_limit": 0, "at_velocity_limit": 0}
         slips: list[float] = []
+        actions_at_limit = 0.0
         episode_return, length, pushes, pushing = 0.0, 0, 0, False
         terminated = truncated = False
         while not (terminated or truncated):
@@ -296,6 +297,7 @@ def run_episodes(
                 limits["at_velocity_limit"] += info["motors_at_velocity_limit"] > 0
                 if not np.isnan(info["foot_slip"]):
                     slips.append(info["foot_slip"])
+                actions_at_limit += info["actions_at_limit"]
         record = {"return": episode_return, "length": float(length), "fell": float(terminated)}
         if "push_force" in info:
             record["pushes"] = float(pushes)
@@ -308,6 +310,7 @@ def run_episodes(
             # Shares of the episode's steps with at least one motor at the limit.
             record.update({key: count / length for key, count in limits.items()})
             record["foot_slip"] = float(np.mean(slips)) if slips else float("nan")
+            record["actions_at_limit"] = actions_at_limit / length
         records.append(record)
     return records
 
@@ -324,7 +327,8 @@ def play(
     """:func:`run_episodes` in a fresh env of ``env_id``, closed afterwards.
 
     ``realism``: also the shares of steps with a motor at its torque or velocity limit,
-    and the foot slip (:mod:`minitaur_env.realism`).
+    the foot slip and the share of actions at their range's ends
+    (:mod:`minitaur_env.realism`).
     """
     from minitaur_env.training.single_env import make_env
 
@@ -368,6 +372,7 @@ LABELS = {
     "at_torque_limit": "steps at a torque limit",
     "at_velocity_limit": "steps at a velocity limit",
     "foot_slip": "foot slip in contact (m/s)",
+    "actions_at_limit": "actions at a range's end",
 }
 
 
