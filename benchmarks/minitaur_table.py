@@ -200,6 +200,19 @@ def evaluations_with_a_fall(run: RunFolder) -> str:
     return f"{int(fell.sum())} of {len(fell)}"
 
 
+def most_falls_in_the_second_half(run: RunFolder) -> str:
+    """The most falls in one periodic evaluation after half the run's budget: a run that
+    degrades at its end shows it there (issue 51's bar: at most 2 in 20)."""
+    config = run.read_config()
+    limit = gym.spec(config["env"]).max_episode_steps
+    with np.load(run.evaluations) as data:
+        late = data["timesteps"] > config["n_timesteps"] / 2
+        lengths = data["ep_lengths"][late]
+    if not len(lengths):
+        return ""
+    return f"{int((lengths < limit).sum(axis=1).max())} of {lengths.shape[1]}"
+
+
 def curve_cells(
     curves: list[RunCurve], table: dict, runs: list[RunFolder], medians: bool
 ) -> list[str]:
@@ -226,6 +239,8 @@ def curve_cells(
             cells.append(f"{np.median(finite):.0f} %" if finite else "")
         elif column == "evaluations with a fall":
             cells.append("" if medians else evaluations_with_a_fall(runs[0]))
+        elif column == "most falls in an evaluation, second half":
+            cells.append("" if medians else most_falls_in_the_second_half(runs[0]))
         else:
             raise UsageError(f"tables.yml: no column {column!r} in a curves table")
     return cells

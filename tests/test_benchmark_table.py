@@ -357,7 +357,9 @@ def test_the_share_of_exploring_episodes_that_fell(tmp_path, finished_run, monke
 def fake_run(folder: Path, seed: int, returns: list[float], lengths: list[int]) -> None:
     """A run folder holding only a config and periodic evaluations (2 episodes each)."""
     folder.mkdir(parents=True)
-    (folder / "config.yml").write_text(f"algo: sac\nenv: MinitaurBulletEnv-v0\nseed: {seed}\n")
+    (folder / "config.yml").write_text(
+        f"algo: sac\nenv: MinitaurBulletEnv-v0\nseed: {seed}\nn_timesteps: 40000\n"
+    )
     steps = 10_000 * np.arange(1, len(returns) + 1)
     np.savez(
         folder / "evaluations.npz",
@@ -386,6 +388,17 @@ def test_a_curves_table_gives_each_run_its_evaluations_and_a_median_row(tmp_path
         "| the same | 1 | 2.00 |  | 9.00 @20k | 20k | 0 of 2 |",  # stopped before 30k
         "| both | 0 1 (medians) | 1.50 | 3.00 | 7.00 | 25k |  |",
     ]
+    # After half the budget (20k of 40k): seed 0's fall at 20k does not count, seed 1
+    # has no evaluation there; a fall at 30k does.
+    fake_run(tmp_path / "late" / "seed2", 2, [1.0, 5.0, 3.0], [1000, 1000, 40])
+    late = {**table, "columns": ["most falls in an evaluation, second half"]}
+    assert [line.split(" | ")[-1] for line in module.render_curves(late).splitlines()[2:]] == [
+        "0 of 2 |",
+        " |",
+        " |",
+    ]
+    late["rows"] = {"late": "late/seed*"}
+    assert module.render_curves(late).splitlines()[2].endswith("| 1 of 2 |")
     with pytest.raises(UsageError, match=r"no run folders for the row 'gone' \(nothing/\*\)"):
         module.render_curves({**table, "rows": {"gone": "nothing/*"}})
     with pytest.raises(UsageError, match="no column 'speed' in a curves table"):
