@@ -149,6 +149,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
       the leg model, so the motor limits are reached at ``|action| = 1 / action_gain``;
       the actions the robot can take stay the same. For policies squashed by tanh (SAC),
       whose entropy falls steeply near +-1, saturating gaits become cheap to represent.
+      ``commanded_action`` holds the last step's action as the leg model took it.
     - ``realism`` (None): a :class:`Realism`, a mapping of its fields (set on top of the
       classic values or the preset's), "classic" or "tan2018": control step, control and
       PD latency, IMU noise and bias (each a value or a range drawn per episode), pushes.
@@ -286,6 +287,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._history = SensorHistory(self.physics_time_step, max_delay) if max_delay > 0 else None
         self._physics_step_count = 0
         self._push_force = np.zeros(3)
+        self.commanded_action = np.zeros(NUM_MOTORS)
         self._push_scale = 1.0
 
         self._sim: BulletSim | None = BulletSim(gui=render_mode == "human")
@@ -464,6 +466,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         action = checked_action(action, NUM_MOTORS)
         if self.action_gain != 1.0:  # at 1 the classic tolerance of 1.01 stays unclipped
             action = np.clip(self.action_gain * action, -1.0, 1.0)
+        self.commanded_action = action  # what the leg model took (the realism probe reads it)
         targets = leg_model_to_motor_angles(action)
         sim, history = self._sim, self._history
         pd_latency, pushes = self._episode.pd_latency, self.realism.pushes

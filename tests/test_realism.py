@@ -48,6 +48,21 @@ def test_actions_at_a_limit_count_what_the_leg_model_takes():
     assert [info["actions_at_limit"] for info in gained] == [6 / 8] * 3  # all but the zeros
 
 
+def test_behind_a_gait_prior_the_motor_actions_are_counted_not_the_policys():
+    env = RealismProbe(gym.make("MinitaurBulletTrot-v0", randomize_dynamics=False))
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    differs = 0
+    for _ in range(30):
+        action = rng.uniform(-1, 1, env.action_space.shape)  # 11: modulation and residuals
+        info = env.step(action)[-1]
+        motors = env.unwrapped.commanded_action  # the 8 the leg model took
+        assert info["actions_at_limit"] == np.mean(np.abs(motors) >= 0.95)
+        differs += info["actions_at_limit"] != np.mean(np.abs(action) >= 0.95)
+    env.close()
+    assert differs > 0  # control: counting the policy's own action would read otherwise
+
+
 def test_the_velocity_limit_follows_the_battery_voltage():
     env = MinitaurBulletEnv(randomize_dynamics=False, on_rack=True)
     flipping = [np.full(8, (-1.0) ** (step // 10)) for step in range(60)]
