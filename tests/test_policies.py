@@ -1,4 +1,5 @@
-"""StabilizedMlpPolicy: LayerNorm critics, gradient clipping and the averaged actor."""
+"""StabilizedMlpPolicy: LayerNorm critics, gradient clipping, the averaged actor, held
+noise and the action gain."""
 
 from __future__ import annotations
 
@@ -187,6 +188,51 @@ def test_held_noise_repeats_the_exploring_draw_for_its_steps_and_no_longer(tmp_p
         )
 
 
+def test_action_gain_multiplies_and_clips_the_action_and_counts_the_gain_in_its_log_prob(
+    tmp_path,
+):
+    plain, gained = sac(), sac(action_gain=2)
+    gained.policy.actor.load_state_dict(plain.policy.actor.state_dict())  # the same actor
+    with torch.no_grad():  # means spread over tanh's range: some beyond ±0.5, some not
+        for actor in (plain.policy.actor, gained.policy.actor):
+            actor.mu.weight.mul_(50.0)
+    obs = torch.tensor(np.random.default_rng(0).normal(size=(64, 3)), dtype=torch.float32)
+    with torch.no_grad():
+        squashed = plain.policy.actor(obs, deterministic=True)
+        acted = gained.policy.actor(obs, deterministic=True)
+        torch.manual_seed(1)
+        sampled, log_prob = plain.policy.actor.action_log_prob(obs)
+        torch.manual_seed(1)
+        gained_sample, gained_log_prob = gained.policy.actor.action_log_prob(obs)
+    assert (squashed.abs() > 0.5).any() and (squashed.abs() < 0.4).any()
+    torch.testing.assert_close(acted, torch.clamp(2 * squashed, -1, 1))
+    torch.testing.assert_close(gained_sample, torch.clamp(2 * sampled, -1, 1))
+    torch.testing.assert_close(gained_log_prob, log_prob - np.log(2.0))  # 1 action dim
+    # The control: without the gain, actions beyond ±0.5 are not at the limit.
+    assert not torch.allclose(squashed, acted)
+    # The held noise goes through the gain too, and every action stays within the bounds.
+    held = sac(action_gain=2, noise_hold=4)
+    held.policy.actor.load_state_dict(gained.policy.actor.state_dict())
+    held_plain = sac(noise_hold=4)
+    held_plain.policy.actor.load_state_dict(gained.policy.actor.state_dict())
+    torch.manual_seed(2)
+    exploring = held.predict(obs.numpy(), deterministic=False)[0]
+    torch.manual_seed(2)
+    exploring_plain = held_plain.predict(obs.numpy(), deterministic=False)[0]
+    np.testing.assert_allclose(exploring, np.clip(2 * exploring_plain, -2, 2), atol=1e-5)
+    assert np.abs(exploring).max() <= 2.0  # Pendulum's bounds
+    gained.save(tmp_path / "gained.zip")
+    loaded = load_model(SAC, tmp_path / "gained.zip", device="cpu")
+    assert loaded.policy.action_gain == 2.0
+    np.testing.assert_array_equal(
+        loaded.predict(obs.numpy(), deterministic=True)[0],
+        gained.predict(obs.numpy(), deterministic=True)[0],
+    )
+    for bad in (0.5, True, "2", float("inf")):
+        with pytest.raises(ValueError, match="action_gain must be a number >= 1"):
+            sac(action_gain=bad)
+
+
 def test_the_policy_and_its_held_noise_train_resume_export_and_bad_values_are_one_line(tmp_path):
     def config(**policy_kwargs):
         return ExperimentConfig.resolve(
@@ -205,14 +251,16 @@ def test_the_policy_and_its_held_noise_train_resume_export_and_bad_values_are_on
             },
         )
 
-    run = Experiment.create(config(critic_layer_norm=True, noise_hold=8), tmp_path, verbose=0)
+    settings = {"critic_layer_norm": True, "noise_hold": 8, "action_gain": 2}
+    run = Experiment.create(config(**settings), tmp_path, verbose=0)
     result = run.run()
     assert result.status == "completed"
     resumed = Experiment.resume(result.run.path, n_timesteps=90, verbose=0)
     assert resumed.run().status == "completed" and resumed.resumed_at == 60
     model = load_model(SAC, result.run.final_model, device="cpu")
     assert isinstance(model.policy, StabilizedSACPolicy) and model.policy.noise_hold == 8
-    if importlib.util.find_spec("onnxruntime"):  # the held noise leaves the exported actor
+    assert model.policy.action_gain == 2
+    if importlib.util.find_spec("onnxruntime"):  # the held noise leaves, the gain stays
         exported = export_onnx(result.run.path, tmp_path / "policy.onnx")
         assert exported["max_abs_difference"] < 1e-5
     with pytest.raises(UsageError, match=r"actor_ema is a decay in \(0, 1\), got 1.5"):

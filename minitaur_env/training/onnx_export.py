@@ -5,8 +5,9 @@ units: VecNormalize's ``(obs - mean) / sqrt(var + eps)`` clipped to ``clip_obs``
 actor's mean action, then the squashed policies' (SAC, TQC, CrossQ, TD3) rescaling from
 [-1, 1] to the action bounds, or the Gaussian policies' (PPO, A2C) clipping to them.
 A policy trained with ``actor_ema`` exports its averaged actor, as its deterministic
-``predict`` does. The deterministic heads are written out here rather than traced
-through SB3's distribution objects, which torch's exporter cannot follow.
+``predict`` does, and one with ``action_gain`` its multiplied and clipped action. The
+deterministic heads are written out here rather than traced through SB3's distribution
+objects, which torch's exporter cannot follow.
 
 Nothing is assumed: before the file is written, onnxruntime plays the graph on
 observations drawn around the training statistics and must agree with the model's own
@@ -30,6 +31,7 @@ from minitaur_env.onnx_policy import METADATA_KEY, load_session
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import LoadedPolicy, load_policy
 from minitaur_env.training.files import atomic_path
+from minitaur_env.training.policies import motor_action
 from minitaur_env.training.run_folder import RunFolder
 
 TOLERANCE = 1e-5
@@ -85,7 +87,7 @@ class DeterministicActor(nn.Module):
         if self.head == "squashed_gaussian":  # SAC, TQC, CrossQ: tanh of the Gaussian mean
             actor = getattr(self.policy, "averaged_actor", None) or self.policy.actor
             mean, _, _ = actor.get_action_dist_params(x)
-            action = torch.tanh(mean)
+            action = motor_action(actor, torch.tanh(mean))
         elif self.head == "deterministic":  # TD3: the actor ends in tanh
             action = self.policy.actor(x)
         else:  # PPO, A2C: the Gaussian mean

@@ -1,6 +1,6 @@
 """SAC policies with the stabilizers the SAC ablation measures (docs/results.md, "Stabilizing SAC").
 
-``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with four opt-in changes, each a policy
+``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with five opt-in changes, each a policy
 keyword so that SB3's own ``SAC`` class trains it unchanged:
 
 - ``critic_layer_norm``: LayerNorm after every hidden linear layer of the critics (DroQ,
@@ -14,6 +14,13 @@ keyword so that SB3's own ``SAC`` class trains it unchanged:
   ``noise_hold`` steps and held in between (per env), so exploration is correlated in
   time, as SBX's SAC explores with ``use_sde`` (it reuses one noise draw per rollout).
   Updates and evaluations are unchanged.
+- ``action_gain``: the actor's squashed action is multiplied by the gain and clipped to
+  [-1, 1], so the motor limits are reached at ``tanh(u) = ±1/gain``, where the squashing
+  costs the Gaussian little entropy, instead of at tanh's asymptote. The log-probability
+  is the multiplied action's (before the clip), so the entropy target stays a target on
+  the commands the robot gets: at the default's target 0 the motors' exploration noise
+  is the default's, and the per-step entropy bonus stays centred on 0 (a negative target
+  in the actor's own units makes ending an episode pay).
 
 They hook into the optimizers (``register_step_pre_hook``/``register_step_post_hook``)
 rather than into ``SAC.train``, so a saved model rebuilds them on load.
@@ -21,6 +28,7 @@ rather than into ``SAC.train``, so a saved model rebuilds them on load.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
@@ -71,8 +79,33 @@ class LayerNormCritic(ContinuousCritic):
             self.q_networks.append(q_net)
 
 
+class GainActor(Actor):
+    """SB3's actor with its squashed action multiplied by ``action_gain`` and clipped."""
+
+    def __init__(self, *args: Any, action_gain: float, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.action_gain = action_gain
+        # log|det| of the gain, once per action dimension: the multiplied action's density
+        self.log_gain = self.action_space.shape[0] * math.log(action_gain)
+
+    def motor_action(self, squashed: torch.Tensor) -> torch.Tensor:
+        return torch.clamp(squashed * self.action_gain, -1.0, 1.0)
+
+    def forward(self, obs: Any, deterministic: bool = False) -> torch.Tensor:
+        return self.motor_action(super().forward(obs, deterministic))
+
+    def action_log_prob(self, obs: Any) -> tuple[torch.Tensor, torch.Tensor]:
+        squashed, log_prob = super().action_log_prob(obs)
+        return self.motor_action(squashed), log_prob - self.log_gain
+
+
+def motor_action(actor: Actor, squashed: torch.Tensor) -> torch.Tensor:
+    """What ``actor`` acts with, from its tanh-squashed Gaussian sample or mean."""
+    return actor.motor_action(squashed) if isinstance(actor, GainActor) else squashed
+
+
 class StabilizedSACPolicy(SACPolicy):
-    """``SACPolicy`` plus ``critic_layer_norm``, ``max_grad_norm`` and ``actor_ema``."""
+    """``SACPolicy`` plus the stabilizers and exploration settings of the module's list."""
 
     def __init__(
         self,
@@ -81,8 +114,13 @@ class StabilizedSACPolicy(SACPolicy):
         max_grad_norm: float | None = None,
         actor_ema: float | None = None,
         noise_hold: int = 1,
+        action_gain: float = 1.0,
         **kwargs: Any,
     ) -> None:
+        if isinstance(action_gain, bool) or not isinstance(action_gain, (int, float)):
+            raise ValueError(f"action_gain must be a number >= 1, got {action_gain!r}")
+        if not 1 <= action_gain < math.inf:
+            raise ValueError(f"action_gain must be a number >= 1, got {action_gain}")
         if isinstance(noise_hold, bool) or not isinstance(noise_hold, int) or noise_hold < 1:
             raise ValueError(f"noise_hold must be a whole number of steps >= 1, got {noise_hold}")
         if max_grad_norm is not None and not max_grad_norm > 0:
@@ -94,6 +132,7 @@ class StabilizedSACPolicy(SACPolicy):
         self.actor_ema = actor_ema
         self.averaged_actor: Actor | None = None
         self.noise_hold = noise_hold
+        self.action_gain = float(action_gain)
         self._held_noise: torch.Tensor | None = None
         self._held_steps = 0
         super().__init__(*args, **kwargs)
@@ -115,6 +154,12 @@ class StabilizedSACPolicy(SACPolicy):
             self.averaged_actor.requires_grad_(False)
             self.averaged_actor.set_training_mode(False)
             self.actor.optimizer.register_step_post_hook(self._update_averaged_actor)
+
+    def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> Actor:
+        if self.action_gain == 1:
+            return super().make_actor(features_extractor)
+        kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
+        return GainActor(**kwargs, action_gain=self.action_gain).to(self.device)
 
     def make_critic(
         self, features_extractor: BaseFeaturesExtractor | None = None
@@ -144,7 +189,7 @@ class StabilizedSACPolicy(SACPolicy):
             self._held_noise = held = torch.randn_like(mean)
             self._held_steps = 0
         self._held_steps += 1
-        return torch.tanh(mean + log_std.exp() * held)
+        return motor_action(self.actor, torch.tanh(mean + log_std.exp() * held))
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -153,6 +198,7 @@ class StabilizedSACPolicy(SACPolicy):
             max_grad_norm=self.max_grad_norm,
             actor_ema=self.actor_ema,
             noise_hold=self.noise_hold,
+            action_gain=self.action_gain,
         )
         return data
 
