@@ -145,10 +145,6 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``motor_kp``, ``motor_kd`` (None: 1.0/0.02, 8.0/0.3 or 1.0/1.0 by mode).
     - ``motor_overheat_protection`` (True), ``motor_velocity_limit`` (inf rad/s).
     - ``action_repeat`` (1): control steps each action is held for.
-    - ``action_gain`` (1.0): the action is multiplied by it and clipped to [-1, 1] before
-      the leg model, so the motor limits are reached at ``|action| = 1 / action_gain``;
-      the actions the robot can take stay the same. For policies squashed by tanh (SAC),
-      whose entropy falls steeply near +-1, saturating gaits become cheap to represent.
       ``commanded_action`` holds the last step's action as the leg model took it.
     - ``realism`` (None): a :class:`Realism`, a mapping of its fields (set on top of the
       classic values or the preset's), "classic" or "tan2018": control step, control and
@@ -199,7 +195,6 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         motor_overheat_protection: bool = True,
         motor_velocity_limit: float = math.inf,
         action_repeat: int = 1,
-        action_gain: float = 1.0,
         realism: Realism | dict[str, Any] | str | None = None,
         control_time_step: float | None = None,
         control_latency: float | None = None,
@@ -263,8 +258,6 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
             "motor_velocity_limit", motor_velocity_limit, 0, math.inf, low_open=True, unit="rad/s"
         )
         self.action_repeat = integer("action_repeat", action_repeat, 1, 1000)
-        # Below 1 the robot could no longer reach its limits: another task, so refused.
-        self.action_gain = number("action_gain", action_gain, 1, 100)
         default_kp, default_kd = DEFAULT_GAINS[motor_control]
         self._kp = number("motor_kp", default_kp if motor_kp is None else motor_kp, 0, 1e4)
         self._kd = number("motor_kd", default_kd if motor_kd is None else motor_kd, 0, 1e4)
@@ -464,8 +457,6 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         if robot is None:
             raise ResetNeeded("call reset() before step()")
         action = checked_action(action, NUM_MOTORS)
-        if self.action_gain != 1.0:  # at 1 the classic tolerance of 1.01 stays unclipped
-            action = np.clip(self.action_gain * action, -1.0, 1.0)
         self.commanded_action = action  # what the leg model took (the realism probe reads it)
         targets = leg_model_to_motor_angles(action)
         sim, history = self._sim, self._history

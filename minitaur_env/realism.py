@@ -13,8 +13,8 @@ ceiling, run near their no-load speed, or feet that skid instead of pushing. The
 - ``foot_slip``: the mean horizontal speed (m/s) of the lower legs' points in contact
   with the ground, NaN when none touches it;
 - ``actions_at_limit``: the share of the step's 8 actions, as the leg model takes them
-  (after ``action_gain``), within 5 % of the range's ends: bang-bang use of the swing
-  and extension ranges.
+  (behind a gait prior, the motor actions, not the policy's), within 5 % of the range's
+  ends: bang-bang use of the swing and extension ranges.
 
 Motor figures are sampled at the last physics step of each control step. The probe
 costs a contact query and a few link states per step, so it is opt-in

@@ -434,7 +434,6 @@ def test_step_before_reset_raises(env):
         ({"render_mode": "window"}, "render_mode"),
         ({"motor_control": "magic"}, "motor_control"),
         ({"action_repeat": 0}, "action_repeat"),
-        ({"action_gain": 0.5}, r"action_gain must be in \[1, 100\]"),
         ({"distance_limit": -1.0}, "distance_limit"),
         ({"observation_noise_stdev": -0.1}, "observation_noise_stdev"),
         # accepted before without a word: 0 solver iterations, a push at every physics step,
@@ -581,25 +580,6 @@ def test_action_repeat_holds_each_action_longer():
     np.testing.assert_allclose(info["base_position"], single_info["base_position"], atol=1e-9)
     env.close()
     single.close()
-
-
-def test_action_gain_reaches_the_same_motor_limits_sooner():
-    def trajectory(gain: float, actions: np.ndarray) -> np.ndarray:
-        env = MinitaurBulletEnv(action_gain=gain, randomize_dynamics=False)
-        env.reset(seed=0)
-        observations = [env.step(action)[0] for action in actions]
-        env.close()
-        return np.array(observations)
-
-    rng = np.random.default_rng(0)
-    actions = rng.uniform(-1, 1, (30, 8)).astype(np.float32)
-    # Gain 2: a half-size action is the full one, and beyond |0.5| it is the limit.
-    np.testing.assert_array_equal(trajectory(2.0, actions / 2), trajectory(1.0, actions))
-    np.testing.assert_array_equal(
-        trajectory(2.0, actions), trajectory(1.0, np.clip(2 * actions, -1, 1))
-    )
-    # Negative control: the gain does change what an action does.
-    assert not np.array_equal(trajectory(2.0, actions / 2), trajectory(1.0, actions / 2))
 
 
 def test_on_rack_holds_the_base_in_the_air():
