@@ -22,10 +22,11 @@ from minitaur_env.training import (
 )
 from minitaur_env.training import experiment as experiment_module
 from minitaur_env.training.aggregate import wall_clock_at
-from minitaur_env.training.algorithms import load_model
+from minitaur_env.training.algorithms import algorithm_class, load_model
 from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.files import load_pickle
 from minitaur_env.training.hyperparams import load_hyperparams
+from minitaur_env.training.policies import GainActor
 from minitaur_env.training.replay_buffer import load_replay_buffer
 from tests.scripts import REPO, needs
 
@@ -612,11 +613,14 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, backend, hyperp
         ExperimentConfig.resolve(algo, "Pendulum-v1", hyperparams=settings, backend=backend)
 
 
-@pytest.mark.parametrize("algo", ["sac", "tqc", "crossq"])
-def test_the_minitaur_entries_build_and_train(tmp_path, algo):
+@pytest.mark.parametrize(
+    ("algo", "name"), [("sac", None), ("sac", "minitaur-gain"), ("tqc", None), ("crossq", None)]
+)
+def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     config = ExperimentConfig.resolve(
         algo,
         "MinitaurBulletEnv-v0",
+        entry=name,
         hyperparams={"learning_starts": 32},
         n_timesteps=64,
         env_kwargs={"max_episode_steps": 40},
@@ -629,6 +633,8 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo):
     assert entry["normalize"] is True and entry["n_timesteps"] <= 300_000
     result = Experiment.create(config, tmp_path, verbose=0).run()
     assert result.status == "completed" and result.num_timesteps == 64
+    actor = load_model(algorithm_class(algo), result.run.final_model, device="cpu").policy.actor
+    assert isinstance(actor, GainActor) == (name == "minitaur-gain")
 
 
 @pytest.mark.parametrize(
