@@ -145,7 +145,8 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``motor_kp``, ``motor_kd`` (None: 1.0/0.02, 8.0/0.3 or 1.0/1.0 by mode).
     - ``motor_overheat_protection`` (True), ``motor_velocity_limit`` (inf rad/s).
     - ``action_repeat`` (1): control steps each action is held for.
-      ``commanded_action`` holds the last step's action as the leg model took it.
+      The attribute ``commanded_action`` holds the last step's action as the leg model
+      took it (behind a gait prior, the 8 motor actions; the realism probe reads it).
     - ``realism`` (None): a :class:`Realism`, a mapping of its fields (set on top of the
       classic values or the preset's), "classic" or "tan2018": control step, control and
       PD latency, IMU noise and bias (each a value or a range drawn per episode), pushes.
