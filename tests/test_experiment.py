@@ -24,7 +24,6 @@ from minitaur_env.training import experiment as experiment_module
 from minitaur_env.training.aggregate import wall_clock_at
 from minitaur_env.training.algorithms import algorithm_class, load_model
 from minitaur_env.training.checkpoints import save_checked_checkpoint
-from minitaur_env.training.envs import AliveBonus
 from minitaur_env.training.files import load_pickle
 from minitaur_env.training.hyperparams import load_hyperparams
 from minitaur_env.training.policies import GainActor
@@ -595,37 +594,6 @@ def test_a_push_curriculum_finds_the_pushes_in_realism_or_the_old_keyword(env_kw
             hyperparams=curriculum,
             env_kwargs={"realism": {"pushes": False}},
         )
-
-
-def test_an_alive_bonus_pays_the_learner_only_and_survives_a_resume(tmp_path):
-    def episode_rewards(bonus: float, name: str) -> tuple[np.ndarray, list[float], Experiment]:
-        hyperparams = {"alive_bonus": bonus} if bonus else {}
-        experiment = pendulum(tmp_path / name, env="ShortPendulum-v0", hyperparams=hyperparams)
-        experiment.run()
-        learned = experiment.model.replay_buffer.rewards[:100, 0].reshape(4, 25).sum(axis=1)
-        monitor = experiment.run_folder.monitor_dir / "0.monitor.csv"
-        logged = [float(line.split(",")[0]) for line in monitor.read_text().splitlines()[2:6]]
-        return learned, logged, experiment
-
-    learned, logged, experiment = episode_rewards(0.5, "bonus")
-    assert learned == pytest.approx(np.array(logged) + 25 * 0.5, abs=1e-3)
-    assert experiment.eval_env.env_is_wrapped(AliveBonus) == [False]
-    plain, plain_logged, control = episode_rewards(0.0, "control")
-    assert plain == pytest.approx(plain_logged, abs=1e-3)  # the control: no bonus, no gap
-    assert control.env.env_is_wrapped(AliveBonus) == [False]
-
-    resumed = Experiment.resume(experiment.run_folder.path, n_timesteps=250, verbose=0)
-    resumed.build()
-    assert resumed.env.env_is_wrapped(AliveBonus) == [True]
-    resumed.close()
-
-
-@pytest.mark.parametrize("bonus", [-0.1, "yes", True, float("nan")])
-def test_a_bad_alive_bonus_is_one_line(bonus):
-    with pytest.raises(
-        UsageError, match=re.escape(f"alive_bonus must be a number >= 0, got {bonus!r}")
-    ):
-        ExperimentConfig.resolve("sac", "Pendulum-v1", hyperparams={"alive_bonus": bonus})
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,6 @@ from minitaur_env.training.algorithms import algorithm_class, infer_algo
 from minitaur_env.training.hyperparams import (
     RUN_KEYS,
     algorithm_kwargs,
-    alive_bonus,
     entropy_decay,
     load_hyperparams,
     push_curriculum,
@@ -131,7 +130,6 @@ class ExperimentConfig:
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)
-        alive_bonus(self.hyperparams)
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
 

@@ -26,10 +26,6 @@ ENTROPY_ALGOS = ("sac", "tqc", "crossq")  # the algorithms that tune an entropy 
 # n_timesteps). Evaluations always push at full force.
 PUSH_CURRICULUM_KEY = "push_curriculum"
 CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY)  # read by callbacks, not the algorithm
-# A reward added to every step of the training envs only (not to evaluations, nor to the
-# monitor's returns): staying up pays, where the energy term makes falling the cheap way
-# out of a gait that does not yet move forward.
-ALIVE_BONUS_KEY = "alive_bonus"
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -95,7 +91,7 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
     from stable_baselines3.common.utils import LinearSchedule
 
     kwargs = copy.deepcopy(hyperparams)  # SBX's TQC writes into policy_kwargs
-    for key in (*CALLBACK_KEYS, ALIVE_BONUS_KEY):
+    for key in CALLBACK_KEYS:
         kwargs.pop(key, None)
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
@@ -169,12 +165,3 @@ def push_curriculum(hyperparams: dict[str, Any], env_pushes: Any) -> tuple[float
             f"{prefix}: the env has no pushes to scale; add --env-kwargs 'realism={{pushes: true}}'"
         )
     return float(start), float(full_at)
-
-
-def alive_bonus(hyperparams: dict[str, Any]) -> float:
-    """The ``alive_bonus`` entry (reward per training step), 0 without one."""
-    value = hyperparams.get(ALIVE_BONUS_KEY, 0)
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if not number or not 0 <= value < float("inf"):
-        raise UsageError(f"{ALIVE_BONUS_KEY} must be a number >= 0, got {value!r}")
-    return float(value)
