@@ -133,10 +133,8 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
     assert "final models (no checkpoint picking)" in provenance["selection"]["rule"]
     assert provenance["training"]["seed"] == 3 and provenance["training"]["model_steps"] == 160
     assert provenance["training"]["model"] == f"MinitaurBulletEnv-v0.zip of {kept}"
-    # Training ended inside an unlogged episode: the final model's time was NaN here (and
-    # written as None). A few seconds of training round to 0.0 minutes on a fast machine.
-    minutes = provenance["training"]["wall_clock_min_to_model"]
-    assert isinstance(minutes, float) and minutes >= 0, minutes
+    # Training ended inside an unlogged episode: the final model's time was NaN here.
+    assert provenance["training"]["wall_clock_min_to_model"] > 0
 
 
 def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(

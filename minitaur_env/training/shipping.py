@@ -322,7 +322,8 @@ def _write_shipped(
             "model": f"{model.relative_to(run.path)} of {run.path}",
             "model_steps": steps,
             "trained_steps": max((steps for steps, _ in run.checkpoints()), default=steps),
-            "wall_clock_min_to_model": round(minutes, 1) if np.isfinite(minutes) else None,
+            # Hundredths: a short run's seconds must not round to 0.0 minutes.
+            "wall_clock_min_to_model": round(minutes, 2) if np.isfinite(minutes) else None,
             "wall_clock_note": "training minutes as the run's monitor files recorded them, "
             "on the machine that trained it (a shared one runs slower)",
         },
