@@ -1,10 +1,10 @@
 """SAC training throughput on MinitaurBulletEnv-v0, against SB3's SAC defaults.
 
-Every variant trains SAC with the same algorithmic settings as SB3's defaults (batch 256,
-(256, 256) actor and critics, one gradient step per env step) and differs only in how
-the work is executed: torch threads, updates batched in time, SBX (the JAX
-implementation of SAC by SB3's maintainers, ``pip install sbx-rl``), except two that
-price a cheaper update: batch 128 and (128, 128) networks. Each is measured in
+Most variants train SAC with SB3's default algorithmic settings (batch 256, (256, 256)
+actor and critics, one gradient step per env step) and differ only in how the work is
+executed: torch threads, updates batched in time, SBX (the JAX implementation of SAC by
+SB3's maintainers, ``pip install sbx-rl``). Two price a cheaper update instead: batch
+128, and (128, 128) networks. Each is measured in
 this one process, one after the other, over the learning phase (from ``--untimed`` (200)
 updates after ``learning_starts``, so JAX's compilation is not counted). Also prints the
 memory of a 1M transition replay buffer.
