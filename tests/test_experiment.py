@@ -761,3 +761,70 @@ def test_the_robust_recipe_is_an_entry_that_reproduces_the_shipped_robust_ppos_s
     assert mine.env_kwargs == {"history": 2, "realism": {"pushes": True}}
     # and the classic entry has none
     assert ExperimentConfig.resolve("ppo", "MinitaurBulletEnv-v0").env_kwargs == {}
+
+
+def test_mirror_stores_each_transition_and_its_mirror_image_and_resumes_without_pickles(tmp_path):
+    from minitaur_env.robot import mirror_leg_action, mirror_observation
+    from minitaur_env.training.replay_buffer import MirroredReplayBuffer
+
+    def minitaur(name: str, **hyperparams) -> Experiment:
+        config = ExperimentConfig.resolve(
+            "sac",
+            "MinitaurBulletEnv-v0",
+            hyperparams={**SMALL_SAC, "n_steps": 3, **hyperparams},
+            n_timesteps=120,
+            eval_freq=0,
+            save_freq=60,
+            vec_env="dummy",
+            device="cpu",
+        )
+        return Experiment.create(config, tmp_path / name, verbose=0)
+
+    experiment = minitaur("mirror", mirror=True)
+    run = experiment.run().run
+    buffer = experiment.model.replay_buffer
+    assert isinstance(buffer, MirroredReplayBuffer) and buffer.n_steps == 3
+    stored = np.s_[: buffer.pos]
+    assert buffer.observations.shape[1] == 2 and buffer.pos == 120
+    assert np.array_equal(
+        buffer.observations[stored, 1], mirror_observation(buffer.observations[stored, 0])
+    )
+    assert np.array_equal(buffer.actions[stored, 1], mirror_leg_action(buffer.actions[stored, 0]))
+    assert np.array_equal(buffer.rewards[stored, 1], buffer.rewards[stored, 0])
+    assert not np.array_equal(buffer.observations[stored, 1], buffer.observations[stored, 0])
+    assert 0 < buffer.sample(4000).discounts.mean() < 0.99  # 3-step returns: 0.99**3 mostly
+
+    control = minitaur("control")
+    control.run()
+    assert type(control.model.replay_buffer).__name__ == "NStepReplayBuffer"
+    assert control.model.replay_buffer.observations.shape[1] == 1
+
+    resumed = Experiment.resume(run.path, n_timesteps=160, verbose=0)  # no --trust-pickle
+    assert resumed.run().status == "completed" and resumed.resumed_at == 120
+    buffer = resumed.model.replay_buffer
+    assert isinstance(buffer, MirroredReplayBuffer) and buffer.n_steps == 3
+    stored = np.s_[: buffer.pos]
+    assert buffer.pos > 150
+    assert np.array_equal(
+        buffer.observations[stored, 1], mirror_observation(buffer.observations[stored, 0])
+    )
+
+
+@pytest.mark.parametrize(
+    ("algo", "env", "hyperparams", "message"),
+    [
+        ("sac", "Pendulum-v1", {"mirror": "yes"}, "mirror must be true or false, got 'yes'"),
+        ("ppo", "MinitaurBulletEnv-v0", {"mirror": True}, "mirror: ppo has no replay buffer"),
+        ("sac", "Pendulum-v1", {"mirror": True}, "mirror: needs the classic 28-value observation"),
+        (
+            "sac",
+            "MinitaurBulletTrot-v0",
+            {"mirror": True},
+            "mirror: needs the classic 28-value observation",
+        ),
+    ],
+)
+def test_mirror_where_there_is_no_mirror_image_is_one_line(algo, env, hyperparams, message):
+    with pytest.raises(UsageError, match=re.escape(message)):  # before any env or model runs
+        config = ExperimentConfig.resolve(algo, env, hyperparams=hyperparams, n_timesteps=100)
+        experiment_module.check_buildable(config)

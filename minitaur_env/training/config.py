@@ -9,12 +9,13 @@ from typing import Any
 import gymnasium as gym
 
 from minitaur_env.training import VEC_ENVS, UsageError
-from minitaur_env.training.algorithms import algorithm_class, infer_algo
+from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, infer_algo
 from minitaur_env.training.hyperparams import (
     RUN_KEYS,
     algorithm_kwargs,
     entropy_decay,
     load_hyperparams,
+    mirrored,
     push_curriculum,
 )
 from minitaur_env.training.single_env import qualified_env_id
@@ -126,6 +127,11 @@ class ExperimentConfig:
         _check_device(self.device)
         algorithm_class(self.algo, self.backend)
         algorithm_kwargs(self.hyperparams)
+        if mirrored(self.hyperparams) and self.algo not in OFF_POLICY:
+            raise UsageError(
+                f"mirror: {self.algo} has no replay buffer to store mirror images in; "
+                f"it is for {', '.join(sorted(OFF_POLICY))}"
+            )
         entropy_decay(self.hyperparams, self.algo, self.backend)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)

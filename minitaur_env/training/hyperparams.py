@@ -26,6 +26,9 @@ ENTROPY_ALGOS = ("sac", "tqc", "crossq")  # the algorithms that tune an entropy 
 # n_timesteps). Evaluations always push at full force.
 PUSH_CURRICULUM_KEY = "push_curriculum"
 CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY)  # read by callbacks, not the algorithm
+# ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
+# happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
+MIRROR_KEY = "mirror"
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -93,6 +96,17 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
     kwargs = copy.deepcopy(hyperparams)  # SBX's TQC writes into policy_kwargs
     for key in CALLBACK_KEYS:
         kwargs.pop(key, None)
+    if mirrored(kwargs):
+        from minitaur_env.training.replay_buffer import MirroredReplayBuffer
+
+        # The buffer computes the n-step returns: SB3 sets up its own n-step buffer only
+        # when no buffer class is given, and warns that n_steps is ignored otherwise.
+        kwargs["replay_buffer_class"] = MirroredReplayBuffer
+        kwargs["replay_buffer_kwargs"] = {
+            "n_steps": kwargs.pop("n_steps", 1),
+            "gamma": kwargs.get("gamma", 0.99),
+        }
+    kwargs.pop(MIRROR_KEY, None)
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
         if not isinstance(value, str):
@@ -165,3 +179,13 @@ def push_curriculum(hyperparams: dict[str, Any], env_pushes: Any) -> tuple[float
             f"{prefix}: the env has no pushes to scale; add --env-kwargs 'realism={{pushes: true}}'"
         )
     return float(start), float(full_at)
+
+
+def mirrored(hyperparams: dict[str, Any]) -> bool:
+    """The ``mirror`` entry, false without one."""
+    value = hyperparams.get(MIRROR_KEY, False)
+    if not isinstance(value, bool):
+        raise UsageError(f"{MIRROR_KEY} must be true or false, got {value!r}")
+    if value and "replay_buffer_class" in hyperparams:
+        raise UsageError(f"{MIRROR_KEY}: sets the replay buffer itself; drop replay_buffer_class")
+    return value

@@ -1,4 +1,5 @@
-"""A replay buffer saved as plain arrays (``.npz``), so that resuming a run runs no code.
+"""Replay buffers saved as plain arrays (``.npz``), so that resuming a run runs no code,
+and a buffer that also stores each transition's mirror image.
 
 SB3's ``save_replay_buffer`` pickles the buffer object, and unpickling a file can run
 code from it. A checkpoint's buffer is instead written as its arrays and its position,
@@ -13,7 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.buffers import NStepReplayBuffer
 
+from minitaur_env.robot import NUM_LEGS, OBSERVATION_SIZE, mirror_leg_action, mirror_observation
 from minitaur_env.training import UsageError
 from minitaur_env.training.files import atomic_path
 
@@ -69,3 +73,77 @@ def load_replay_buffer(buffer: Any, path: Path) -> None:
     for name, stored in arrays.items():
         setattr(buffer, name, stored)
     buffer.pos, buffer.full = pos, bool(content["full"])
+
+
+class MirroredReplayBuffer(NStepReplayBuffer):
+    """Each transition stored twice: as it happened and as its left-right mirror image
+    (``robot.mirror_observation`` and ``robot.mirror_leg_action``), so that an update
+    learns from twice the experience an env step gives.
+
+    The mirror image keeps the reward, termination and time limit: the classic reward
+    (forward progress, energy, drift, shake) and the fall test are the same for it. The
+    images are extra env columns of the buffer, so n-step returns run along them as along
+    the real transitions, and each column keeps ``buffer_size`` transitions. Only the
+    classic observation and the leg-model action have a mirror image here.
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: Any = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        n_steps: int = 1,
+        gamma: float = 0.99,
+    ) -> None:
+        if getattr(observation_space, "shape", None) != (OBSERVATION_SIZE,) or getattr(
+            action_space, "shape", None
+        ) != (2 * NUM_LEGS,):
+            raise UsageError(
+                "mirror: needs the classic 28-value observation and the 8 leg-model actions, "
+                f"got observations {observation_space} and actions {action_space}"
+            )
+        low, high = action_space.low, action_space.high
+        if not (
+            np.array_equal(mirror_leg_action(low), low)
+            and np.array_equal(mirror_leg_action(high), high)
+        ):
+            raise UsageError(
+                f"mirror: the action bounds are not left-right symmetric: {action_space}"
+            )
+        self.real_envs = n_envs
+        super().__init__(
+            2 * buffer_size,
+            observation_space,
+            action_space,
+            device,
+            n_envs=2 * n_envs,
+            optimize_memory_usage=optimize_memory_usage,
+            handle_timeout_termination=handle_timeout_termination,
+            n_steps=n_steps,
+            gamma=gamma,
+        )
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        obs = obs.reshape((self.real_envs, *self.obs_shape))
+        next_obs = next_obs.reshape((self.real_envs, *self.obs_shape))
+        action = action.reshape((self.real_envs, self.action_dim))
+        super().add(
+            np.concatenate([obs, mirror_observation(obs)]),
+            np.concatenate([next_obs, mirror_observation(next_obs)]),
+            np.concatenate([action, mirror_leg_action(action)]),
+            np.concatenate([reward, reward]),
+            np.concatenate([done, done]),
+            [*infos, *infos],
+        )

@@ -45,7 +45,12 @@ from minitaur_env.training.run_folder import (
 
 TRUST_FLAG = "--trust-pickle"
 # Modules whose classes a zip may name as its policy or replay buffer.
-TRUSTED_MODULES = ("stable_baselines3.", "sb3_contrib.", "minitaur_env.training.policies")
+TRUSTED_MODULES = (
+    "stable_baselines3.",
+    "sb3_contrib.",
+    "minitaur_env.training.policies",
+    "minitaur_env.training.replay_buffer",  # MirroredReplayBuffer
+)
 _CLASS_NAME = re.compile(r"<function (\w+)\.__init__ at ")
 
 
