@@ -828,3 +828,16 @@ def test_mirror_where_there_is_no_mirror_image_is_one_line(algo, env, hyperparam
     with pytest.raises(UsageError, match=re.escape(message)):  # before any env or model runs
         config = ExperimentConfig.resolve(algo, env, hyperparams=hyperparams, n_timesteps=100)
         experiment_module.check_buildable(config)
+
+
+def test_mirror_refuses_an_observation_that_only_has_the_classic_size():
+    from gymnasium import spaces
+
+    from minitaur_env.training.replay_buffer import MirroredReplayBuffer
+
+    leg_actions = spaces.Box(-1, 1, (8,))
+    with pytest.raises(UsageError, match="mirror: needs the classic 28-value observation"):
+        MirroredReplayBuffer(100, spaces.Box(-1, 1, (28,)), leg_actions)
+    classic = gym.make("MinitaurBulletEnv-v0")
+    assert MirroredReplayBuffer(100, classic.observation_space, leg_actions).n_envs == 2
+    classic.close()

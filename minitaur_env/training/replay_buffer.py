@@ -17,7 +17,8 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.buffers import NStepReplayBuffer
 
-from minitaur_env.robot import NUM_LEGS, OBSERVATION_SIZE, mirror_leg_action, mirror_observation
+from minitaur_env.robot import NUM_LEGS, mirror_leg_action, mirror_observation
+from minitaur_env.sensors import OBSERVATION_BOUND
 from minitaur_env.training import UsageError
 from minitaur_env.training.files import atomic_path
 
@@ -99,9 +100,14 @@ class MirroredReplayBuffer(NStepReplayBuffer):
         n_steps: int = 1,
         gamma: float = 0.99,
     ) -> None:
-        if getattr(observation_space, "shape", None) != (OBSERVATION_SIZE,) or getattr(
-            action_space, "shape", None
-        ) != (2 * NUM_LEGS,):
+        # The declared bounds identify the classic observation: another 28-value
+        # observation would be mirrored into nonsense without a word.
+        classic = (
+            isinstance(observation_space, spaces.Box)
+            and observation_space.shape == OBSERVATION_BOUND.shape
+            and np.array_equal(observation_space.high, OBSERVATION_BOUND)
+        )
+        if not classic or getattr(action_space, "shape", None) != (2 * NUM_LEGS,):
             raise UsageError(
                 "mirror: needs the classic 28-value observation and the 8 leg-model actions, "
                 f"got observations {observation_space} and actions {action_space}"
