@@ -614,7 +614,14 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, backend, hyperp
 
 
 @pytest.mark.parametrize(
-    ("algo", "name"), [("sac", None), ("sac", "minitaur-gain"), ("tqc", None), ("crossq", None)]
+    ("algo", "name"),
+    [
+        ("sac", None),
+        ("sac", "minitaur-gain"),
+        ("sac", "minitaur-mirror"),
+        ("tqc", None),
+        ("crossq", None),
+    ],
 )
 def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     config = ExperimentConfig.resolve(
@@ -631,10 +638,13 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     )
     entry = load_hyperparams(algo, "MinitaurBulletEnv-v0")
     assert entry["normalize"] is True and entry["n_timesteps"] <= 300_000
-    result = Experiment.create(config, tmp_path, verbose=0).run()
+    experiment = Experiment.create(config, tmp_path, verbose=0)
+    result = experiment.run()
     assert result.status == "completed" and result.num_timesteps == 64
     actor = load_model(algorithm_class(algo), result.run.final_model, device="cpu").policy.actor
     assert isinstance(actor, GainActor) == (name == "minitaur-gain")
+    buffer = type(experiment.model.replay_buffer).__name__
+    assert (buffer == "MirroredReplayBuffer") == (name == "minitaur-mirror")
 
 
 @pytest.mark.parametrize(
