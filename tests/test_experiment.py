@@ -851,3 +851,20 @@ def test_mirror_refuses_an_observation_that_only_has_the_classic_size():
     classic = gym.make("MinitaurBulletEnv-v0")
     assert MirroredReplayBuffer(100, classic.observation_space, leg_actions).n_envs == 2
     classic.close()
+
+
+@pytest.mark.parametrize("algo", ["sac", "td3", "tqc", "crossq"])
+def test_mirror_discounts_its_returns_with_the_algorithms_own_gamma(algo):
+    # No gamma in the hyperparameters: the buffer must not guess one the algorithm lacks.
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from minitaur_env.training.single_env import make_env
+
+    config = ExperimentConfig.resolve(
+        algo, "MinitaurBulletEnv-v0", entry="default", hyperparams={"mirror": True}
+    )
+    assert "gamma" not in config.hyperparams
+    env = DummyVecEnv([lambda: make_env(config.env, config.env_kwargs)])
+    model = experiment_module.new_model(config, env)
+    assert model.replay_buffer.gamma == model.gamma
+    env.close()

@@ -120,7 +120,6 @@ class MirroredReplayBuffer(NStepReplayBuffer):
             raise UsageError(
                 f"mirror: the action bounds are not left-right symmetric: {action_space}"
             )
-        self.real_envs = n_envs
         super().__init__(
             2 * buffer_size,
             observation_space,
@@ -142,9 +141,10 @@ class MirroredReplayBuffer(NStepReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        obs = obs.reshape((self.real_envs, *self.obs_shape))
-        next_obs = next_obs.reshape((self.real_envs, *self.obs_shape))
-        action = action.reshape((self.real_envs, self.action_dim))
+        real_envs = self.n_envs // 2  # the second half of the columns are the images
+        obs = obs.reshape((real_envs, *self.obs_shape))
+        next_obs = next_obs.reshape((real_envs, *self.obs_shape))
+        action = action.reshape((real_envs, self.action_dim))
         super().add(
             np.concatenate([obs, mirror_observation(obs)]),
             np.concatenate([next_obs, mirror_observation(next_obs)]),
