@@ -343,7 +343,9 @@ def test_the_share_of_exploring_episodes_that_fell(tmp_path, finished_run, monke
 
     run = RunFolder(tmp_path / "run")
     run.monitor_dir.mkdir(parents=True)
-    (run.path / "config.yml").write_text((finished_run / "config.yml").read_text())
+    config = yaml.safe_load((finished_run / "config.yml").read_text())
+    config["env_kwargs"] = {}  # the registered episodes, 1000 steps
+    (run.path / "config.yml").write_text(yaml.safe_dump(config))
     # Episodes end at env steps 1000, 1300, 2300, 2800, 3800, 3900; the time limit is 1000.
     lengths = [1000, 300, 1000, 500, 1000, 100]
     rows = [f"0.0,{length},{second}.0" for second, length in enumerate(lengths, start=1)]
@@ -352,6 +354,13 @@ def test_the_share_of_exploring_episodes_that_fell(tmp_path, finished_run, monke
     assert training_fall_share(run, 0, 3900) == pytest.approx(3 / 6)
     assert training_fall_share(run, 2800, 3800) == 0.0  # the one episode ran to the limit
     assert np.isnan(training_fall_share(run, 4000, 5000))  # no episode ended there
+
+    # Trained on shorter episodes, an episode that ran to that limit did not fall.
+    config["hyperparams"]["training_episode_steps"] = 300
+    (run.path / "config.yml").write_text(yaml.safe_dump(config))
+    rows = [f"0.0,{length},{second}.0" for second, length in enumerate([300, 100, 300], 1)]
+    (run.monitor_dir / "0.monitor.csv").write_text('#{"t_start": 0}\nr,l,t\n' + "\n".join(rows))
+    assert training_fall_share(run, 0, 700) == pytest.approx(1 / 3)
 
 
 def fake_run(folder: Path, seed: int, returns: list[float], lengths: list[int]) -> None:
