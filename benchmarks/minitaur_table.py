@@ -41,7 +41,6 @@ import yaml
 
 from minitaur_env.training import UsageError
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci, plot_iqm_curves
-from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.files import atomic_path
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.seeds import REPORT_SEED
@@ -90,9 +89,14 @@ def training_fall_share(run: RunFolder, low: int, high: int) -> float:
     """The share of exploring (training) episodes ending between env steps ``low`` and
     ``high`` that ended in a fall: before the env's time limit. A policy whose exploration
     noise topples the robot learns from falls while its deterministic evaluations walk."""
-    config = ExperimentConfig.from_dict(run.read_config())
-    limit = config.training_env_kwargs.get("max_episode_steps")
-    limit = limit or gym.spec(config.env).max_episode_steps
+    config = run.read_config()
+    # A run's training episodes end at its own time limit; training_episode_steps is
+    # that of the kept sbx-mirror-g098-ep250 screen (the setting of commit 7843756).
+    limit = (
+        config.get("hyperparams", {}).get("training_episode_steps")
+        or config.get("env_kwargs", {}).get("max_episode_steps")
+        or gym.spec(config["env"]).max_episode_steps
+    )
     episodes = sorted(run.monitor_episodes(), key=lambda episode: episode.training_time)
     ends = np.cumsum([episode.length for episode in episodes])  # env steps, all envs
     window = [e.length < limit for e, end in zip(episodes, ends, strict=True) if low < end <= high]

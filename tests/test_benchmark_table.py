@@ -356,11 +356,14 @@ def test_the_share_of_exploring_episodes_that_fell(tmp_path, finished_run, monke
     assert np.isnan(training_fall_share(run, 4000, 5000))  # no episode ended there
 
     # Trained on shorter episodes, an episode that ran to that limit did not fall.
-    config["hyperparams"]["training_episode_steps"] = 300
-    (run.path / "config.yml").write_text(yaml.safe_dump(config))
-    rows = [f"0.0,{length},{second}.0" for second, length in enumerate([300, 100, 300], 1)]
-    (run.monitor_dir / "0.monitor.csv").write_text('#{"t_start": 0}\nr,l,t\n' + "\n".join(rows))
-    assert training_fall_share(run, 0, 700) == pytest.approx(1 / 3)
+    for shorter in (
+        {"env_kwargs": {"max_episode_steps": 300}},
+        {"hyperparams": {"training_episode_steps": 300}},
+    ):
+        (run.path / "config.yml").write_text(yaml.safe_dump({**config, **shorter}))
+        rows = [f"0.0,{length},{second}.0" for second, length in enumerate([300, 100, 300], 1)]
+        (run.monitor_dir / "0.monitor.csv").write_text('#{"t_start": 0}\nr,l,t\n' + "\n".join(rows))
+        assert training_fall_share(run, 0, 700) == pytest.approx(1 / 3)
 
 
 def fake_run(folder: Path, seed: int, returns: list[float], lengths: list[int]) -> None:

@@ -613,50 +613,6 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, backend, hyperp
         ExperimentConfig.resolve(algo, "Pendulum-v1", hyperparams=settings, backend=backend)
 
 
-def test_training_episode_steps_shorten_the_training_episodes_only_and_survive_a_resume(
-    tmp_path,
-):
-    def training_episode_lengths(experiment: Experiment) -> list[int]:
-        monitor = experiment.run_folder.monitor_dir / "0.monitor.csv"
-        return [int(line.split(",")[1]) for line in monitor.read_text().splitlines()[2:]]
-
-    short = pendulum(
-        tmp_path / "short",
-        env="ShortPendulum-v0",
-        hyperparams={"training_episode_steps": 10},
-        eval_freq=100,
-        eval_episodes=1,
-    )
-    result = short.run()
-    assert set(training_episode_lengths(short)) == {10}
-    assert result.last_eval is not None
-    evaluations = np.load(result.run.path / "evaluations.npz")
-    assert evaluations["ep_lengths"].tolist() == [[25], [25]]  # the env's own length
-    control = pendulum(tmp_path / "control", env="ShortPendulum-v0")
-    control.run()
-    assert set(training_episode_lengths(control)) == {25}
-
-    resumed = Experiment.resume(result.run.path, n_timesteps=260, verbose=0)
-    resumed.run()
-    assert set(training_episode_lengths(resumed)) == {10}
-
-
-@pytest.mark.parametrize(
-    ("steps", "message"),
-    [
-        (0, "training_episode_steps must be a whole number >= 1, got 0"),
-        (2.5, "training_episode_steps must be a whole number >= 1, got 2.5"),
-        (True, "training_episode_steps must be a whole number >= 1, got True"),
-        (26, "training_episode_steps 26: longer than the env's episodes (25 steps)"),
-    ],
-)
-def test_a_bad_training_episode_length_is_one_line(steps, message):
-    with pytest.raises(UsageError, match=re.escape(message)):
-        ExperimentConfig.resolve(
-            "sac", "ShortPendulum-v0", hyperparams={"training_episode_steps": steps}
-        )
-
-
 @pytest.mark.parametrize(
     ("algo", "name"),
     [

@@ -17,7 +17,6 @@ from minitaur_env.training.hyperparams import (
     load_hyperparams,
     mirrored,
     push_curriculum,
-    training_episode_steps,
 )
 from minitaur_env.training.single_env import qualified_env_id
 
@@ -103,17 +102,6 @@ class ExperimentConfig:
         within = getattr(realism, "pushes", None) if within is None else within
         return kwargs.get("pushes") if within is None else within
 
-    @property
-    def training_env_kwargs(self) -> dict[str, Any]:
-        """``env_kwargs`` as the training envs take them: with ``training_episode_steps``,
-        their episodes end sooner than the evaluations'."""
-        steps = self._training_episode_steps()
-        return self.env_kwargs if steps is None else {**self.env_kwargs, "max_episode_steps": steps}
-
-    def _training_episode_steps(self) -> int | None:
-        env_steps = self.env_kwargs.get("max_episode_steps") or gym.spec(self.env).max_episode_steps
-        return training_episode_steps(self.hyperparams, env_steps)
-
     def validate(self) -> None:
         """Raise a UsageError for what would only fail later, inside training."""
         for name in ("eval_freq", "save_freq", "video_freq"):
@@ -148,7 +136,6 @@ class ExperimentConfig:
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)
-        self._training_episode_steps()
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
 

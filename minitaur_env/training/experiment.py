@@ -190,7 +190,7 @@ class Experiment:
             config.env,
             n_envs=config.n_envs,
             seed=self.seeds.training(started_at)[0],
-            env_kwargs=config.training_env_kwargs,
+            env_kwargs=config.env_kwargs,
             vec_env=config.vec_env,
             monitor_dir=str(self.run_folder.monitor_dir),
             append_monitor=self.resuming,

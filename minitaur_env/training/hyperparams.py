@@ -29,10 +29,6 @@ CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY)  # read by callbacks, n
 # ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
 # happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
 MIRROR_KEY = "mirror"
-# ``training_episode_steps: 250``: the training envs' episodes end after this many steps,
-# as a time limit the learner bootstraps through, so the replay holds more starts from
-# rest; evaluations keep the env's own episode length.
-TRAINING_EPISODE_KEY = "training_episode_steps"
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -111,7 +107,6 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
             "gamma": kwargs.get("gamma", 0.99),
         }
     kwargs.pop(MIRROR_KEY, None)
-    kwargs.pop(TRAINING_EPISODE_KEY, None)
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
         if not isinstance(value, str):
@@ -193,19 +188,4 @@ def mirrored(hyperparams: dict[str, Any]) -> bool:
         raise UsageError(f"{MIRROR_KEY} must be true or false, got {value!r}")
     if value and "replay_buffer_class" in hyperparams:
         raise UsageError(f"{MIRROR_KEY}: sets the replay buffer itself; drop replay_buffer_class")
-    return value
-
-
-def training_episode_steps(hyperparams: dict[str, Any], env_steps: int | None) -> int | None:
-    """The ``training_episode_steps`` entry, None without one; at most ``env_steps``, the
-    episode length evaluations use."""
-    value = hyperparams.get(TRAINING_EPISODE_KEY)
-    if value is None:
-        return None
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise UsageError(f"{TRAINING_EPISODE_KEY} must be a whole number >= 1, got {value!r}")
-    if env_steps is not None and value > env_steps:
-        raise UsageError(
-            f"{TRAINING_EPISODE_KEY} {value}: longer than the env's episodes ({env_steps} steps)"
-        )
     return value
