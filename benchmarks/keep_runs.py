@@ -3,9 +3,12 @@
 Keeps what anyone needs to judge a run again and to redraw its curves: the final model in
 the zoo's layout (``<env>.zip``, ``<env>/vecnormalize.pkl`` and the zoo's settings), the
 run's ``config.yml``, ``command.txt``, ``evaluations.npz``, monitor files and, for a sweep
-trial, ``trial.yml``. Checkpoints, replay buffers and the best model stay behind.
-``--curves-only`` keeps a run stopped before its end (a screen) without a model: what a
-"curves" table of ``tables.yml`` reads.
+trial, ``trial.yml``, and ``minitaur_table.py``'s judgement of the final model
+(``final_model_report*.json``) where the run was judged in place. Checkpoints, replay
+buffers and the best model stay behind. ``--curves-only`` keeps a run without its model: a
+run stopped before its end (a screen; what a "curves" table of ``tables.yml`` reads), or
+one whose model is too large to commit (an SBX model, 9.5 MB), judged first with
+``minitaur_table.py --row LABEL=RUN_FOLDER`` so that its figures stay in the tables.
 
     python benchmarks/keep_runs.py logs/sweeps/NAME/runs/* --into benchmarks/results/NAME
 """
@@ -40,6 +43,9 @@ def keep(run: RunFolder, destination: Path, curves_only: bool = False) -> None:
         shutil.rmtree(destination)
     destination.mkdir(parents=True)
     files = [run.config, run.command, run.evaluations]
+    files += [
+        report for live in (False, True) if (report := run.final_model_report(live)).is_file()
+    ]
     for source in files if curves_only else [*files, run.zoo_model]:
         shutil.copy2(source, destination / source.name)
     kept = RunFolder(destination)  # its env name comes from the copied config.yml

@@ -148,7 +148,7 @@ def row(
     shown = label
     if live_actor:  # the periodic evaluations played the average, not this actor
         shown += " (evaluation columns: the averaged actor's)"
-    if any(r and "source" in r for r in reports):
+    if any(r and not run.final_model.is_file() for r, run in zip(reports, runs, strict=True)):
         shown += " (final models judged earlier, not kept)"
     text = " | ".join(
         [
@@ -180,15 +180,16 @@ HEADER = (
 )
 
 
-def render(specs: list[tuple[str, str]], args: argparse.Namespace) -> tuple[str, list, list]:
+def render(specs: list[tuple[str, list[str]]], args: argparse.Namespace) -> tuple[str, list, list]:
     """The table of these (label, glob) rows: its markdown, the rows' curves, and the
     labels that have no run folders yet (left out of the table)."""
     lines, groups, missing = [HEADER], [], []
     for label, spec in specs:
-        pattern, live_actor = spec.removesuffix(LIVE), spec.endswith(LIVE)
-        runs = run_folders(pattern)
+        live_actor = any(pattern.endswith(LIVE) for pattern in spec)
+        patterns = [pattern.removesuffix(LIVE) for pattern in spec]
+        runs = run_folders(patterns)
         if not runs:
-            missing.append(f"{label} ({pattern})")
+            missing.append(f"{label} ({' '.join(patterns)})")
             continue
         for run in runs:
             if not run.evaluations.is_file():
@@ -325,8 +326,13 @@ def render_table(name: str, args: argparse.Namespace) -> str:
     return render(table_specs(name), args)[0]
 
 
-def table_specs(name: str) -> list[tuple[str, str]]:
-    return [(label, str(RESULTS / pattern)) for label, pattern in TABLES[name]["rows"].items()]
+def table_specs(name: str) -> list[tuple[str, list[str]]]:
+    """Each row's label and globs (a row is a glob or a list of globs, each run a line's seed
+    in the order given)."""
+    return [
+        (label, [str(RESULTS / p) for p in ([spec] if isinstance(spec, str) else spec)])
+        for label, spec in TABLES[name]["rows"].items()
+    ]
 
 
 def marked(name: str) -> tuple[str, str]:
@@ -397,12 +403,12 @@ def main(argv: list[str] | None = None) -> None:
     if TABLES[args.table].get("kind") in ("curves", "robustness") and not args.row:
         print(render_table(args.table, args))  # plays no episodes
         return
-    specs: list[tuple[str, str]] = []
+    specs: list[tuple[str, list[str]]] = []
     for text in args.row or []:
         label, sep, pattern = text.partition("=")
         if not sep or not label or not pattern:
             parser.error(f"--row expects LABEL=GLOB, got {text!r}")
-        specs.append((label, pattern))
+        specs.append((label, [pattern]))
     table, groups, missing = render(specs or table_specs(args.table), args)
     print(table)
     if missing:

@@ -222,6 +222,24 @@ def test_the_table_judges_final_models_once_and_again_when_asked(finished_run, t
     assert json.loads(report.read_text())["mean"] == pytest.approx(judged["mean"])
 
 
+def test_a_run_judged_in_place_keeps_its_figures_without_its_model(finished_run, tmp_path, table):
+    # An SBX model (9.5 MB) is judged in its run folder, then kept without the model.
+    run = tmp_path / "logs" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(finished_run, run)
+    table("--row", f"live={run}", "--episodes", "1")
+    judged = json.loads(RunFolder(run).final_model_report().read_text())
+    keep_runs(run, tmp_path / "r" / "judged", "--curves-only")
+    unjudged = tmp_path / "logs2" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(finished_run, unjudged)
+    keep_runs(unjudged, tmp_path / "r" / "unjudged", "--curves-only")  # the control
+
+    assert not RunFolder(tmp_path / "r" / "judged" / "seed3").final_model.exists()
+    out = table("--row", f"j={tmp_path}/r/judged/seed*", "--row", f"u={tmp_path}/r/unjudged/seed*")
+    lines = {line.split(" | ")[0]: line for line in out.splitlines() if line.startswith("| ")}
+    assert f"| {judged['mean']:.2f} |" in lines["| j (final models judged earlier, not kept)"]
+    assert lines["| u"].split(" | ")[3] == "-"  # nothing judged: no figure, none invented
+
+
 def test_a_run_without_evaluations_is_one_line(finished_run, tmp_path):
     (tmp_path / "r" / "seed0").mkdir(parents=True)
     (tmp_path / "r" / "seed0" / "config.yml").write_text((finished_run / "config.yml").read_text())
