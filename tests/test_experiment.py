@@ -636,7 +636,7 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
         vec_env="dummy",
         device="cpu",
     )
-    entry = load_hyperparams(algo, "MinitaurBulletEnv-v0")
+    entry = load_hyperparams(algo, "MinitaurBulletEnv-v0", entry=name)
     assert entry["normalize"] is True and entry["n_timesteps"] <= 300_000
     experiment = Experiment.create(config, tmp_path, verbose=0)
     result = experiment.run()
@@ -644,7 +644,9 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     actor = load_model(algorithm_class(algo), result.run.final_model, device="cpu").policy.actor
     assert isinstance(actor, GainActor) == (name == "minitaur-gain")
     buffer = type(experiment.model.replay_buffer).__name__
-    assert (buffer == "MirroredReplayBuffer") == (name == "minitaur-mirror")
+    assert (buffer == "MirroredReplayBuffer") == bool(entry.get("mirror"))
+    mirror_entries = [("sac", None), ("sac", "minitaur-mirror")]  # None: the env's own entry
+    assert bool(entry.get("mirror")) == ((algo, name) in mirror_entries)
 
 
 @pytest.mark.parametrize(

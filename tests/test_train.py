@@ -629,6 +629,11 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     assert tuned["buffer_size"] == 100_000 and tuned["n_steps"] == 5
     assert tuned["policy_kwargs"] == tutorial["policy_kwargs"]  # inherited through `base`
     assert load_hyperparams("sac", "minitaur_env:MinitaurBullet-v0") == tuned
+    # The classic ids' default is the mirror entry (two bases deep); the ids it was not
+    # measured on keep the minitaur entry it extends.
+    minitaur = load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="minitaur")
+    assert tuned == {**minitaur, "mirror": True, "gamma": 0.98, "tau": 0.02}
+    assert load_hyperparams("sac", "MinitaurBulletTrot-v0") == minitaur
     assert load_hyperparams("sac", "Acrobot-v1") == {"n_timesteps": 100000, "policy": "MlpPolicy"}
     assert load_hyperparams("sac", "Pendulum-v1")["learning_rate"] == 1e-3  # its own entry
     with pytest.raises(UsageError, match="no entry 'nope'"):
