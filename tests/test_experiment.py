@@ -806,7 +806,7 @@ def test_mirror_stores_each_transition_and_its_mirror_image_and_resumes_without_
     assert not np.array_equal(buffer.observations[stored, 1], buffer.observations[stored, 0])
     assert 0 < buffer.sample(4000).discounts.mean() < 0.99  # 3-step returns: 0.99**3 mostly
 
-    control = minitaur("control")
+    control = minitaur("control", mirror=False)  # the classic id's default has mirror: true
     control.run()
     assert type(control.model.replay_buffer).__name__ == "NStepReplayBuffer"
     assert control.model.replay_buffer.observations.shape[1] == 1

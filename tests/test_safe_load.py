@@ -283,16 +283,19 @@ def test_resume_runs_no_code_from_the_run_folder(checkpointed, tmp_path):
 def test_resume_refuses_a_pickled_replay_buffer_unless_trusted(checkpointed, tmp_path):
     from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 
-    from minitaur_env.training.replay_buffer import load_replay_buffer
+    from minitaur_env.training.replay_buffer import MirroredReplayBuffer, load_replay_buffer
 
     run = resumed_copy(checkpointed, tmp_path)
     marker = tmp_path / "ran-buffer"
     for steps in (60, 120):  # as versions before 0.3 saved them: SB3's pickle
         arrays = run / "checkpoints" / f"rl_model_replay_buffer_{steps}_steps.npz"
         kind = str(np.load(arrays)["kind"])
-        buffer = {"ReplayBuffer": ReplayBuffer, "NStepReplayBuffer": NStepReplayBuffer}[kind](
-            5000, *spaces_of_the_minitaur()
-        )
+        kinds = {
+            "ReplayBuffer": ReplayBuffer,
+            "NStepReplayBuffer": NStepReplayBuffer,
+            "MirroredReplayBuffer": MirroredReplayBuffer,  # the default SAC entry
+        }
+        buffer = kinds[kind](5000, *spaces_of_the_minitaur())
         load_replay_buffer(buffer, arrays)
         pickled = arrays.with_suffix(".pkl")
         pickled.write_bytes(pickle.dumps(buffer))
