@@ -335,6 +335,19 @@ def table_specs(name: str) -> list[tuple[str, list[str]]]:
     ]
 
 
+def figure_groups(groups: list[GroupSummary], args: argparse.Namespace) -> list[GroupSummary]:
+    """The rows figure 1 draws: the table's ``figure`` list, in its order, or every row
+    (always every row of ``--row``)."""
+    wanted = TABLES[args.table].get("figure")
+    if args.row or not wanted:
+        return groups
+    by_name = {group.name: group for group in groups}
+    unknown = [label for label in wanted if label not in by_name]
+    if unknown:
+        raise UsageError(f"tables.yml: figure of {args.table!r} names no row {unknown[0]!r}")
+    return [by_name[label] for label in wanted]
+
+
 def marked(name: str) -> tuple[str, str]:
     return f"<!-- table: {name} -->", "<!-- /table -->"
 
@@ -418,7 +431,7 @@ def main(argv: list[str] | None = None) -> None:
         "'-': no final model kept, or the milestone never reached"
     )
     if args.plot and groups:
-        plot_iqm_curves(groups, args.plot, 15.0, by_minutes=True)
+        plot_iqm_curves(figure_groups(groups, args), args.plot, 15.0, by_minutes=True)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import yaml
 
 from minitaur_env.ship import main as ship_main
 from minitaur_env.training import UsageError, shipping
-from minitaur_env.training.aggregate import RunCurve, iqm_with_ci
+from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
 from minitaur_env.training.run_folder import RunFolder
 from tests.scripts import REPO, TINY, error_lines, run_main, run_script
 
@@ -454,3 +454,20 @@ def test_a_robustness_table_merges_each_rows_sources(tmp_path, monkeypatch):
     ]
     with pytest.raises(UsageError, match=re.escape("tables.yml: a.json has no policy 'yours'")):
         module.render_robustness({**table, "rows": {"x": "a.json#yours"}})
+
+
+def test_figure_one_draws_the_tables_figure_rows_in_their_order(monkeypatch):
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    module = importlib.import_module("minitaur_table")
+    groups = [GroupSummary(name, [], []) for name in ("screen", "sac", "ppo")]
+    monkeypatch.setitem(module.TABLES, "t", {"figure": ["ppo", "sac"], "rows": {}})
+    args = argparse.Namespace(table="t", row=None)
+
+    assert [group.name for group in module.figure_groups(groups, args)] == ["ppo", "sac"]
+    # --row draws what it was given; a table without a figure list, every row.
+    assert module.figure_groups(groups, argparse.Namespace(table="t", row=["x=y"])) == groups
+    monkeypatch.setitem(module.TABLES, "t", {"rows": {}})
+    assert module.figure_groups(groups, args) == groups
+    monkeypatch.setitem(module.TABLES, "t", {"figure": ["sac", "gone"], "rows": {}})
+    with pytest.raises(UsageError, match=r"tables\.yml: figure of 't' names no row 'gone'"):
+        module.figure_groups(groups, args)

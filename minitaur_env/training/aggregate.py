@@ -248,18 +248,21 @@ def plot_iqm_curves(
     groups: list[GroupSummary], path: Path, threshold: float | None, by_minutes: bool = False
 ) -> None:
     """IQM of the eval return over seeds against env steps, with its 95 % CI band; with
-    ``by_minutes`` a second panel against the median run's wall-clock minutes."""
+    ``by_minutes`` a second panel against the median run's wall-clock minutes. The legend
+    sits under the panels, so that no label hides a curve however many groups there are."""
     from minitaur_env.training.plotting import figure, save_figure
 
+    drawn = [group for group in groups if group.curves]
+    legend_rows = -(-(len(drawn) + (threshold is not None)) // 2)
+    legend_height = 0.2 * legend_rows + 0.2  # inches: one 8-point line each, and a margin
+    height = 4.5 + legend_height
     if by_minutes:
-        fig, (by_steps, by_time) = figure(2, figsize=(12, 4.5))
+        fig, (by_steps, by_time) = figure(2, figsize=(12, height))
         panels = [(by_steps, "env steps"), (by_time, "wall-clock (min), median run")]
     else:
-        fig, by_steps = figure(figsize=(8, 4.5))
+        fig, by_steps = figure(figsize=(8, height))
         panels = [(by_steps, "env steps")]
-    for group in groups:
-        if not group.curves:
-            continue
+    for group in drawn:
         grid, stats = group.iqm_curve()
         label = f"{group.name} ({len(group.curves)} seeds)"
         for ax, xlabel in panels:
@@ -272,6 +275,7 @@ def plot_iqm_curves(
         ax.set_xlabel(xlabel)
         ax.set_ylabel("eval return, IQM over seeds (95% CI)")
         ax.grid(alpha=0.3)
-    if by_steps.get_legend_handles_labels()[0]:
-        by_steps.legend(loc="best", fontsize=8)
-    save_figure(fig, path)
+    handles, labels = by_steps.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    save_figure(fig, path, bottom=legend_height / height if handles else 0.0)

@@ -18,8 +18,10 @@ def figure(ncols: int = 1, figsize: tuple[float, float] = (8, 4.5)) -> tuple[Fig
     return fig, fig.subplots(1, ncols)
 
 
-def save_figure(fig: Figure, path: str | os.PathLike[str]) -> None:
-    fig.tight_layout()
+def save_figure(fig: Figure, path: str | os.PathLike[str], bottom: float = 0.0) -> None:
+    """Write ``fig`` as a PNG, its axes laid out above ``bottom`` (a fraction of the
+    figure's height kept free, e.g. for a legend under the axes)."""
+    fig.tight_layout(rect=(0, bottom, 1, 1))
     with atomic_path(path) as temp:
         fig.savefig(temp, format="png")
 
