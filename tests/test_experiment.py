@@ -753,17 +753,26 @@ def test_a_run_folder_stands_for_its_final_model_in_every_command(tmp_path):
         RunFolder.model_of(run.path)
 
 
-def test_the_robust_recipe_is_an_entry_that_reproduces_the_shipped_robust_ppos_settings():
+def test_the_robust_recipe_is_the_shipped_robust_ppos_entry_under_pushes_with_a_decaying_rate():
     import yaml
 
     shipped = yaml.safe_load(
         (REPO / "pretrained/ppo/MinitaurBulletTrotRandomized-v0_1/config.yml").read_text()
     )
+    before = ExperimentConfig.resolve(
+        "ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-history"
+    )
+    assert before.env_kwargs == shipped["env_kwargs"] == {"history": 4}
+    assert before.hyperparams == shipped["hyperparams"]
+    assert (before.n_timesteps, before.n_envs) == (shipped["n_timesteps"], shipped["n_envs"])
     for how in ({}, {"entry": "robust"}):
         config = ExperimentConfig.resolve("ppo", "MinitaurBulletTrotRandomized-v0", **how)
-        assert config.env_kwargs == shipped["env_kwargs"] == {"history": 4}
-        assert config.hyperparams == shipped["hyperparams"]
-        assert (config.n_timesteps, config.n_envs) == (shipped["n_timesteps"], shipped["n_envs"])
+        assert config.env_kwargs == {"history": 4, "realism": {"pushes": "sagittal"}}
+        assert config.env_pushes == "sagittal"
+        changed = {"learning_rate": "lin_2.5e-4", "push_curriculum": {"start": 0.0, "full_at": 0.5}}
+        assert config.hyperparams == {**before.hyperparams, **changed}
+        assert (config.n_timesteps, config.n_envs) == (before.n_timesteps, before.n_envs)
+        config.validate()
     # --env-kwargs still decide over the entry's
     mine = ExperimentConfig.resolve(
         "ppo",

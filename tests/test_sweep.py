@@ -364,6 +364,18 @@ def test_without_the_ray_extra_the_sweep_says_so_in_one_line():
     ]
 
 
+def test_a_trial_on_one_cpu_steps_its_envs_in_its_own_process():
+    from minitaur_env.training.trial import trial_config
+
+    several = dataclasses.replace(base(), n_envs=4, vec_env="auto").to_dict()
+    one_cpu = trial_config({"base": several, "seed": 3, "num_threads": 1})
+    assert (one_cpu.vec_env, one_cpu.seed, one_cpu.n_envs) == ("dummy", 3, 4)
+    # with more CPUs reserved, or a vec env the user chose, it is left as it was
+    assert trial_config({"base": several, "seed": 3, "num_threads": 2}).vec_env == "auto"
+    chosen = {**several, "vec_env": "grouped"}
+    assert trial_config({"base": chosen, "seed": 3, "num_threads": 1}).vec_env == "grouped"
+
+
 def test_seeds_are_a_count_from_first_seed_or_a_list():
     from minitaur_env.training.sweeps import seed_list
 

@@ -61,13 +61,10 @@ def set_aside_unresumable(folder: Path, algo: str, env_id: str) -> list[Path]:
     return moved
 
 
-def run_trial(trial: dict[str, Any], trust_pickle: bool = False) -> None:
-    """Ray Tune's function trainable: one configuration, one seed, one run folder;
-    ``trust_pickle``: a resumed run may unpickle its files (the sweep's --trust-pickle)."""
-    from ray import tune
-
-    import minitaur_env  # noqa: F401  (registers the ids in this worker)
-
+def trial_config(trial: dict[str, Any]) -> ExperimentConfig:
+    """The run a trial makes: the sweep's configuration with the trial's seed and sampled
+    values. A trial that reserved one CPU steps its envs in its own process: ``auto``
+    would spread them over every core of the machine, the other trials' included."""
     base = ExperimentConfig.from_dict(trial["base"])
     sampled = {key: decode(value) for key, value in trial.items() if key not in TRIAL_SETTINGS}
     seed = trial["seed"] if "seed" in trial else base.seed + int(trial.get("__trial_index__", 0))
@@ -77,6 +74,20 @@ def run_trial(trial: dict[str, Any], trust_pickle: bool = False) -> None:
         hyperparams={**base.hyperparams, **{k: v for k, v in sampled.items() if k not in RUN_KEYS}},
         **{key: value for key, value in sampled.items() if key in RUN_KEYS},
     )
+    if config.vec_env == "auto" and int(trial.get("num_threads", 1)) == 1:
+        config = dataclasses.replace(config, vec_env="dummy")
+    return config
+
+
+def run_trial(trial: dict[str, Any], trust_pickle: bool = False) -> None:
+    """Ray Tune's function trainable: one configuration, one seed, one run folder;
+    ``trust_pickle``: a resumed run may unpickle its files (the sweep's --trust-pickle)."""
+    from ray import tune
+
+    import minitaur_env  # noqa: F401  (registers the ids in this worker)
+
+    config = trial_config(trial)
+    sampled = {key: decode(value) for key, value in trial.items() if key not in TRIAL_SETTINGS}
     folder = Path(trial["runs"]) / tune.get_context().get_trial_id()
     folder.mkdir(parents=True, exist_ok=True)
     import ray
