@@ -61,12 +61,17 @@ def set_aside_unresumable(folder: Path, algo: str, env_id: str) -> list[Path]:
     return moved
 
 
+def sampled_values(trial: dict[str, Any]) -> dict[str, Any]:
+    """What the search (or a grid) chose for this trial, not the sweep's own settings."""
+    return {key: decode(value) for key, value in trial.items() if key not in TRIAL_SETTINGS}
+
+
 def trial_config(trial: dict[str, Any]) -> ExperimentConfig:
     """The run a trial makes: the sweep's configuration with the trial's seed and sampled
     values. A trial that reserved one CPU steps its envs in its own process: ``auto``
     would spread them over every core of the machine, the other trials' included."""
     base = ExperimentConfig.from_dict(trial["base"])
-    sampled = {key: decode(value) for key, value in trial.items() if key not in TRIAL_SETTINGS}
+    sampled = sampled_values(trial)
     seed = trial["seed"] if "seed" in trial else base.seed + int(trial.get("__trial_index__", 0))
     config = dataclasses.replace(
         base,
@@ -87,7 +92,7 @@ def run_trial(trial: dict[str, Any], trust_pickle: bool = False) -> None:
     import minitaur_env  # noqa: F401  (registers the ids in this worker)
 
     config = trial_config(trial)
-    sampled = {key: decode(value) for key, value in trial.items() if key not in TRIAL_SETTINGS}
+    sampled = sampled_values(trial)
     folder = Path(trial["runs"]) / tune.get_context().get_trial_id()
     folder.mkdir(parents=True, exist_ok=True)
     import ray
