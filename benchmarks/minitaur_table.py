@@ -208,6 +208,16 @@ def evaluations_with_a_fall(run: RunFolder) -> str:
     return f"{int(fell.sum())} of {len(fell)}"
 
 
+def falls_in_each_evaluation(run: RunFolder) -> str:
+    """The falls of every periodic evaluation in order: what a run learned to survive
+    and when, where the mean return hides it."""
+    limit = gym.spec(run.read_config()["env"]).max_episode_steps
+    with np.load(run.evaluations) as data:
+        lengths = data["ep_lengths"]
+    falls = (lengths < limit).sum(axis=1)
+    return " ".join(str(int(f)) for f in falls) + f" of {lengths.shape[1]}"
+
+
 def most_falls_in_the_second_half(run: RunFolder) -> str:
     """The most falls in one periodic evaluation after half the run's budget: a run that
     degrades at its end shows it there (issue 51's bar: at most 2 in 20)."""
@@ -247,6 +257,8 @@ def curve_cells(
             cells.append(f"{np.median(finite):.0f} %" if finite else "")
         elif column == "evaluations with a fall":
             cells.append("" if medians else evaluations_with_a_fall(runs[0]))
+        elif column == "falls in each evaluation":
+            cells.append("" if medians else falls_in_each_evaluation(runs[0]))
         elif column == "most falls in an evaluation, second half":
             cells.append("" if medians else most_falls_in_the_second_half(runs[0]))
         else:

@@ -429,6 +429,12 @@ def test_a_curves_table_gives_each_run_its_evaluations_and_a_median_row(tmp_path
     ]
     late["rows"] = {"late": "late/seed*"}
     assert module.render_curves(late).splitlines()[2].endswith("| 1 of 2 |")
+    each = {**table, "columns": ["falls in each evaluation"]}
+    assert [line.split(" | ")[-1] for line in module.render_curves(each).splitlines()[2:]] == [
+        "0 1 0 of 2 |",
+        "0 0 of 2 |",
+        " |",  # no median of a sequence
+    ]
     with pytest.raises(UsageError, match=r"no run folders for the row 'gone' \(nothing/\*\)"):
         module.render_curves({**table, "rows": {"gone": "nothing/*"}})
     with pytest.raises(UsageError, match="no column 'speed' in a curves table"):
