@@ -753,26 +753,24 @@ def test_a_run_folder_stands_for_its_final_model_in_every_command(tmp_path):
         RunFolder.model_of(run.path)
 
 
-def test_the_robust_recipe_is_the_shipped_robust_ppos_entry_under_pushes_with_a_decaying_rate():
+def test_the_robust_ppos_env_runs_the_shipped_recipe_and_the_robust_entry_adds_pushes():
     import yaml
 
     shipped = yaml.safe_load(
         (REPO / "pretrained/ppo/MinitaurBulletTrotRandomized-v0_1/config.yml").read_text()
     )
-    before = ExperimentConfig.resolve(
-        "ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-history"
-    )
-    assert before.env_kwargs == shipped["env_kwargs"] == {"history": 4}
-    assert before.hyperparams == shipped["hyperparams"]
-    assert (before.n_timesteps, before.n_envs) == (shipped["n_timesteps"], shipped["n_envs"])
-    for how in ({}, {"entry": "robust"}):
-        config = ExperimentConfig.resolve("ppo", "MinitaurBulletTrotRandomized-v0", **how)
-        assert config.env_kwargs == {"history": 4, "realism": {"pushes": "sagittal"}}
-        assert config.env_pushes == "sagittal"
-        changed = {"learning_rate": "lin_2.5e-4", "push_curriculum": {"start": 0.0, "full_at": 0.5}}
-        assert config.hyperparams == {**before.hyperparams, **changed}
-        assert (config.n_timesteps, config.n_envs) == (before.n_timesteps, before.n_envs)
-        config.validate()
+    for how in ({}, {"entry": "trot-history"}):
+        before = ExperimentConfig.resolve("ppo", "MinitaurBulletTrotRandomized-v0", **how)
+        assert before.env_kwargs == shipped["env_kwargs"] == {"history": 4}
+        assert before.hyperparams == shipped["hyperparams"]
+        assert (before.n_timesteps, before.n_envs) == (shipped["n_timesteps"], shipped["n_envs"])
+    config = ExperimentConfig.resolve("ppo", "MinitaurBulletTrotRandomized-v0", entry="robust")
+    assert config.env_kwargs == {"history": 4, "realism": {"pushes": "sagittal"}}
+    assert config.env_pushes == "sagittal"
+    changed = {"learning_rate": "lin_2.5e-4", "push_curriculum": {"start": 0.0, "full_at": 0.5}}
+    assert config.hyperparams == {**before.hyperparams, **changed}
+    assert (config.n_timesteps, config.n_envs) == (before.n_timesteps, before.n_envs)
+    config.validate()
     # --env-kwargs still decide over the entry's
     mine = ExperimentConfig.resolve(
         "ppo",
