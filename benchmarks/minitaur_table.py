@@ -200,35 +200,34 @@ def render(specs: list[tuple[str, list[str]]], args: argparse.Namespace) -> tupl
     return "\n".join(lines), groups, missing
 
 
-def evaluations_with_a_fall(run: RunFolder) -> str:
-    """How many periodic evaluations had an episode end before the time limit."""
+def evaluation_falls(run: RunFolder) -> tuple[np.ndarray, np.ndarray, int]:
+    """Each periodic evaluation's steps and falls (episodes that ended before the time
+    limit), and the episodes per evaluation."""
     limit = gym.spec(run.read_config()["env"]).max_episode_steps
     with np.load(run.evaluations) as data:
-        fell = (data["ep_lengths"] < limit).any(axis=1)
-    return f"{int(fell.sum())} of {len(fell)}"
+        steps, lengths = data["timesteps"], data["ep_lengths"]
+    return steps, (lengths < limit).sum(axis=1), lengths.shape[1]
+
+
+def evaluations_with_a_fall(run: RunFolder) -> str:
+    """How many periodic evaluations had an episode end before the time limit."""
+    _, falls, _ = evaluation_falls(run)
+    return f"{int((falls > 0).sum())} of {len(falls)}"
 
 
 def falls_in_each_evaluation(run: RunFolder) -> str:
     """The falls of every periodic evaluation in order: what a run learned to survive
     and when, where the mean return hides it."""
-    limit = gym.spec(run.read_config()["env"]).max_episode_steps
-    with np.load(run.evaluations) as data:
-        lengths = data["ep_lengths"]
-    falls = (lengths < limit).sum(axis=1)
-    return " ".join(str(int(f)) for f in falls) + f" of {lengths.shape[1]}"
+    _, falls, episodes = evaluation_falls(run)
+    return " ".join(str(int(f)) for f in falls) + f" of {episodes}"
 
 
 def most_falls_in_the_second_half(run: RunFolder) -> str:
     """The most falls in one periodic evaluation after half the run's budget: a run that
     degrades at its end shows it there (issue 51's bar: at most 2 in 20)."""
-    config = run.read_config()
-    limit = gym.spec(config["env"]).max_episode_steps
-    with np.load(run.evaluations) as data:
-        late = data["timesteps"] > config["n_timesteps"] / 2
-        lengths = data["ep_lengths"][late]
-    if not len(lengths):
-        return ""
-    return f"{int((lengths < limit).sum(axis=1).max())} of {lengths.shape[1]}"
+    steps, falls, episodes = evaluation_falls(run)
+    late = falls[steps > run.read_config()["n_timesteps"] / 2]
+    return f"{int(late.max())} of {episodes}" if len(late) else ""
 
 
 def curve_cells(
