@@ -446,3 +446,60 @@ def test_learning_prints_each_groups_steps_and_minutes_as_a_ratio_to_the_baselin
     assert number(steps_ratio) == pytest.approx(number(steps) / number(ppo_steps), abs=0.01)
     assert number(minutes_ratio) == pytest.approx(number(minutes) / number(ppo_minutes), abs=0.01)
     assert not [line for line in result.stdout.splitlines() if line.startswith("ppo to ")]
+
+
+def test_evaluation_cost_prices_each_default_commands_evaluations_against_its_training(
+    tmp_path,
+):
+    needs("sbx")
+    script = [sys.executable, str(REPO / "benchmarks/evaluation_cost.py")]
+    result = subprocess.run(
+        [
+            *script,
+            *("--episodes", "1", "--sac-steps", "16", "--ppo-steps", "16"),
+            *("--settings", "10000:20", "50000:5"),
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        timeout=900,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    evaluation = {
+        algo: figure(
+            rf"shipped {algo} \(1 episodes, 0 fell\): {NUMBER} env steps/s", result.stdout
+        )[0]
+        for algo in ("SAC", "PPO")
+    }
+    rows = re.findall(
+        r"^\| `(.*)` \| (\d+)k \| ([0-9.]+) \| (\d+)k x (\d+) \| ([0-9.]+) \| (\d+)% \|$",
+        result.stdout,
+        re.M,
+    )
+    assert [(row[0], row[3], row[4]) for row in rows] == [
+        (command, freq, episodes)
+        for command in (
+            "python train.py",
+            "python train.py --backend sbx",
+            "python train.py --algo ppo",
+        )
+        for freq, episodes in (("10", "20"), ("50", "5"))
+    ]
+    for command, budget, training, freq, episodes, minutes, share in rows:
+        rate = evaluation["PPO" if "ppo" in command else "SAC"]
+        expected = int(budget) // int(freq) * int(episodes) * 1000 / rate / 60
+        assert float(minutes) == pytest.approx(expected, rel=0.01, abs=0.06)
+        whole = float(training) + float(minutes)
+        assert int(share) == pytest.approx(100 * float(minutes) / whole, abs=1.5)
+    budgets = {row[0]: int(row[1]) for row in rows}
+    assert budgets["python train.py"] == 300 and budgets["python train.py --algo ppo"] == 1000
+    # Fewer episodes, less often: the same training, a smaller share spent evaluating.
+    first, second = rows[0], rows[1]
+    assert first[2] == second[2] and int(second[6]) < int(first[6])
+
+    refused = subprocess.run(
+        [*script, "--settings", "10000"], capture_output=True, text=True, cwd=tmp_path
+    )
+    assert refused.returncode == 2
+    assert "'10000': expected FREQ:EPISODES" in error_lines(refused.stderr)[-1]
