@@ -44,11 +44,13 @@ import minitaur_env  # noqa: F401  (registers the ids)
 from minitaur_env import Pushes
 from minitaur_env.training.callbacks import PushCurriculum
 from minitaur_env.training.evaluation import run_episodes
-from minitaur_env.training.hyperparams import algorithm_kwargs, load_hyperparams, parse_overrides
+from minitaur_env.training.hyperparams import (
+    RUN_KEYS,
+    algorithm_kwargs,
+    load_hyperparams,
+    parse_overrides,
+)
 from minitaur_env.training.seeds import REPORT_SEED, judging_block
-
-# The entry's keys that say how to build the run, not arguments of PPO itself.
-ENTRY_SETTINGS = ("n_timesteps", "policy", "n_envs", "normalize")
 
 
 class SurvivalReward(gym.Wrapper):
@@ -185,7 +187,7 @@ def main(argv: list[str] | None = None) -> None:
     venv = DummyVecEnv(envs)
     venv.seed(args.seed)
     venv = VecNormalize(venv, gamma=entry["gamma"])
-    settings = {key: value for key, value in entry.items() if key not in ENTRY_SETTINGS}
+    settings = {key: value for key, value in entry.items() if key not in RUN_KEYS}
     model = PPO(entry["policy"], venv, seed=args.seed, **algorithm_kwargs(settings))
     callbacks = [
         PushCurriculum(start=0.0, full_at=int(args.ramp * args.timesteps)),

@@ -676,3 +676,22 @@ def test_an_unwritable_tensorboard_folder_is_refused_before_training(tmp_path):
         f"train.py: error: cannot write to {tmp_path / 'a-file' / 'tb'}: Not a directory"
     ]
     assert not list((tmp_path / "logs").glob("*/*"))  # no half-made run folder
+
+
+def test_evaluation_settings_come_from_the_entry_and_a_flag_wins():
+    from minitaur_env.training.cli import config_from_args
+
+    def config(*argv: str):
+        return config_from_args(train.build_parser().parse_args(list(argv)))
+
+    sac, ppo = config(), config("--algo", "ppo")
+    assert (sac.eval_freq, sac.eval_episodes) == (10_000, 10)
+    assert (ppo.eval_freq, ppo.eval_episodes) == (25_000, 10)  # the PPO entry's
+    assert "eval_freq" not in ppo.hyperparams  # a run setting, never PPO's keyword
+    given = config("--algo", "ppo", "--eval-freq", "5000", "--eval-episodes", "3")
+    assert (given.eval_freq, given.eval_episodes) == (5_000, 3)
+    assert config("--algo", "ppo", "--eval-freq", "0").eval_freq == 0  # 0 is given, not unset
+    via_hyperparams = config("--hyperparams", "eval_freq=20000")
+    assert via_hyperparams.eval_freq == 20_000 and "eval_freq" not in via_hyperparams.hyperparams
+    with pytest.raises(UsageError, match="eval_episodes"):
+        config("--hyperparams", "eval_episodes=2.5")

@@ -21,8 +21,16 @@ def add_experiment_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add("--env", default=DEFAULT_ENV, help=f"gymnasium env id (default: {DEFAULT_ENV})")
     add("-n", "--n-timesteps", type=int, help="env steps to train (default: from the config)")
-    add("--eval-freq", type=int, default=10_000, help="evaluate every N env steps; 0: never")
-    add("--eval-episodes", type=int, default=20, help="episodes per evaluation (default: 20)")
+    add(
+        "--eval-freq",
+        type=int,
+        help="evaluate every N env steps; 0: never (default: the entry's, else 10000)",
+    )
+    add(
+        "--eval-episodes",
+        type=int,
+        help="episodes per evaluation (default: the entry's, else 10)",
+    )
     add("--conf-file", default=None, help="YAML hyperparameter file (default: the packaged one)")
     add(
         "--config",

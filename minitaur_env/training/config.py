@@ -38,7 +38,7 @@ class ExperimentConfig:
     policy: str = "MlpPolicy"
     hyperparams: dict[str, Any] = dataclasses.field(default_factory=dict)
     eval_freq: int = 10_000
-    eval_episodes: int = 20
+    eval_episodes: int = 10
     save_freq: int = 5_000
     video_freq: int = 0
     video_length: int = 1000
@@ -64,7 +64,8 @@ class ExperimentConfig:
         """The hyperparameter file's entry for ``env`` (or ``entry``), with overrides.
 
         ``hyperparams`` may also set the run keys ``n_timesteps``, ``n_envs``,
-        ``normalize`` and ``policy``; ``settings`` are the other fields. An entry's
+        ``normalize``, ``policy``, ``eval_freq`` and ``eval_episodes``; ``settings`` are
+        the other fields (``eval_freq``/``eval_episodes`` None: the entry's). An entry's
         ``env_kwargs`` (a recipe's env settings) are the defaults of ``env_kwargs``.
         """
         table = load_hyperparams(algo, env, conf_file, entry)
@@ -78,6 +79,11 @@ class ExperimentConfig:
             run["n_timesteps"] = n_timesteps
         if n_envs is not None:
             run["n_envs"] = n_envs
+        for key in ("eval_freq", "eval_episodes"):  # a flag given wins over the entry
+            if settings.get(key) is None:
+                settings.pop(key, None)
+                if key in run:
+                    settings[key] = _whole_number(run[key], key)
         config = cls(
             algo=algo,
             env=env,
