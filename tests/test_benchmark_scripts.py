@@ -448,11 +448,12 @@ def test_learning_prints_each_groups_steps_and_minutes_as_a_ratio_to_the_baselin
     assert not [line for line in result.stdout.splitlines() if line.startswith("ppo to ")]
 
 
-def test_evaluation_cost_prices_each_default_commands_evaluations_against_its_training(
-    tmp_path,
+def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
+    tmp_path, monkeypatch
 ):
     needs("sbx")
-    script = [sys.executable, str(REPO / "benchmarks/evaluation_cost.py")]
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # it imports training_speed
+    script = [sys.executable, str(REPO / "benchmarks/default_minutes.py")]
     result = subprocess.run(
         [
             *script,
@@ -472,6 +473,7 @@ def test_evaluation_cost_prices_each_default_commands_evaluations_against_its_tr
         )[0]
         for algo in ("SAC", "PPO")
     }
+    commands = ("python train.py", "python train.py --backend sbx", "python train.py --algo ppo")
     rows = re.findall(
         r"^\| `(.*)` \| (\d+)k \| ([0-9.]+) \| (\d+)k x (\d+) \| ([0-9.]+) \| (\d+)% \|$",
         result.stdout,
@@ -479,11 +481,7 @@ def test_evaluation_cost_prices_each_default_commands_evaluations_against_its_tr
     )
     assert [(row[0], row[3], row[4]) for row in rows] == [
         (command, freq, episodes)
-        for command in (
-            "python train.py",
-            "python train.py --backend sbx",
-            "python train.py --algo ppo",
-        )
+        for command in commands
         for freq, episodes in (("10", "20"), ("50", "5"))
     ]
     for command, budget, training, freq, episodes, minutes, share in rows:
@@ -495,8 +493,26 @@ def test_evaluation_cost_prices_each_default_commands_evaluations_against_its_tr
     budgets = {row[0]: int(row[1]) for row in rows}
     assert budgets["python train.py"] == 300 and budgets["python train.py --algo ppo"] == 1000
     # Fewer episodes, less often: the same training, a smaller share spent evaluating.
-    first, second = rows[0], rows[1]
-    assert first[2] == second[2] and int(second[6]) < int(first[6])
+    assert rows[0][2] == rows[1][2] and int(rows[1][6]) < int(rows[0][6])
+
+    # The wait: each command at its entry's own evaluations, its kept runs' median steps.
+    waits = re.findall(
+        r"^\| `(.*)` \| (\d+)k x (\d+) \| (\d+) \| (\d+)k \| ([0-9.]+) \| ([0-9.]+) \| "
+        r"([0-9.]+) \| ([0-9.]+) \|$",
+        result.stdout,
+        re.M,
+    )
+    assert [wait[0] for wait in waits] == list(commands)
+    assert [(wait[1], wait[2]) for wait in waits] == [("10", "10"), ("10", "10"), ("25", "10")]
+    module = benchmark_module("default_minutes")
+    ppo = waits[-1]
+    assert float(ppo[6]) == 1.0 and float(ppo[8]) == 1.0
+    for command, _, _, runs, steps, to_walk, ratio, whole, whole_ratio in waits:
+        median, kept = module.median_steps_to(15.0, module.COMMANDS[command][2])
+        assert int(runs) == kept >= 3 and int(steps) == round(median / 1000)
+        assert 0 < float(to_walk) < float(whole)
+        assert float(ratio) == pytest.approx(float(to_walk) / float(ppo[5]), rel=0.03)
+        assert float(whole_ratio) == pytest.approx(float(whole) / float(ppo[7]), rel=0.03)
 
     refused = subprocess.run(
         [*script, "--settings", "10000"], capture_output=True, text=True, cwd=tmp_path
