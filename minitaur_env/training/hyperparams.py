@@ -16,7 +16,7 @@ from minitaur_env.training.files import parse_yaml, read_yaml
 # Keys of a hyperparameter entry that configure the run rather than the algorithm. An
 # entry's evaluation settings are its defaults for --eval-freq and --eval-episodes: a
 # PPO run's 1M steps would spend two thirds of its time evaluating at SAC's every 10k
-# (benchmarks/evaluation_cost.py).
+# (benchmarks/default_minutes.py).
 RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "policy", "eval_freq", "eval_episodes")
 # Keys that take rl-baselines3-zoo's ``lin_<initial value>`` (linear decay to 0).
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
