@@ -453,18 +453,12 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
 ):
     needs("sbx")
     monkeypatch.syspath_prepend(str(REPO / "benchmarks"))  # it imports training_speed
-    script = [sys.executable, str(REPO / "benchmarks/default_minutes.py")]
-    result = subprocess.run(
-        [
-            *script,
-            *("--episodes", "1", "--sac-steps", "16", "--ppo-steps", "16"),
-            *("--settings", "10000:20", "50000:5"),
-        ],
-        capture_output=True,
-        text=True,
-        env={**os.environ, "OMP_NUM_THREADS": "1"},
-        timeout=900,
+    result = run_script(
+        "benchmarks/default_minutes.py",
+        *("--episodes", "1", "--sac-steps", "16", "--ppo-steps", "16"),
+        *("--settings", "10000:20", "50000:5"),
         cwd=tmp_path,
+        timeout=900,
     )
     assert result.returncode == 0, result.stderr
     evaluation = {
@@ -514,8 +508,6 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
         assert float(ratio) == pytest.approx(float(to_walk) / float(ppo[5]), rel=0.03)
         assert float(whole_ratio) == pytest.approx(float(whole) / float(ppo[7]), rel=0.03)
 
-    refused = subprocess.run(
-        [*script, "--settings", "10000"], capture_output=True, text=True, cwd=tmp_path
-    )
+    refused = run_script("benchmarks/default_minutes.py", "--settings", "10000", cwd=tmp_path)
     assert refused.returncode == 2
     assert "'10000': expected FREQ:EPISODES" in error_lines(refused.stderr)[-1]
