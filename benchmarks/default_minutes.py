@@ -60,7 +60,7 @@ COMMANDS = {
             "sbx-mirror-g098-300-4/seed*",
         ],
     ),
-    "python train.py --algo ppo": ("ppo", "sb3", ["ppo-default/seed*"]),
+    "python train.py --algo ppo": ("ppo", "sb3", ["ppo-lin/seed*"]),
 }
 
 

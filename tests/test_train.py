@@ -638,6 +638,15 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     assert load_hyperparams("sac", "Pendulum-v1")["learning_rate"] == 1e-3  # its own entry
     with pytest.raises(UsageError, match="no entry 'nope'"):
         load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="nope")
+    # PPO's classic ids decay the minitaur entry's rate; the other ids keep the entry,
+    # and the robust recipe's history entry stays the shipped robust policy's.
+    ppo = load_hyperparams("ppo", "MinitaurBulletEnv-v0", entry="minitaur")
+    assert ppo["learning_rate"] == 2.5e-4
+    for env in ("MinitaurBulletEnv-v0", "MinitaurBullet-v0"):
+        assert load_hyperparams("ppo", env) == {**ppo, "learning_rate": "lin_2.5e-4"}
+    for env in ("MinitaurBulletDuckEnv-v0", "MinitaurBulletRandomized-v0"):
+        assert load_hyperparams("ppo", env) == ppo
+    assert load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0")["learning_rate"] == 2.5e-4
 
 
 def test_runs_started_together_get_their_own_folders(tmp_path):
