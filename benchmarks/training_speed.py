@@ -32,7 +32,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
 import minitaur_env  # noqa: F401
-from minitaur_env.training.hyperparams import RUN_KEYS, load_hyperparams
+from minitaur_env.training.hyperparams import RUN_KEYS, algorithm_kwargs, load_hyperparams
 
 
 class _LearningPhaseTimer(BaseCallback):
@@ -91,7 +91,7 @@ def measure_ppo(steps: int, vec_env: str, default_threads: int, rollout: int = 0
         hyperparams["batch_size"] = min(hyperparams["batch_size"], rollout * run["n_envs"])
     env = make_training_env("MinitaurBulletEnv-v0", n_envs=run["n_envs"], seed=0, vec_env=vec_env)
     env = VecNormalize(env)
-    model = PPO(run["policy"], env, seed=0, device="cpu", **hyperparams)
+    model = PPO(run["policy"], env, seed=0, device="cpu", **algorithm_kwargs(hyperparams))
     steps_per_rollout = hyperparams["n_steps"] * run["n_envs"]
     model.learn(steps_per_rollout)  # first rollout and update: start-up, not timed
     start = time.perf_counter()
