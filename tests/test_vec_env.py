@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import gymnasium as gym
@@ -221,3 +223,24 @@ def test_workers_leave_ctrl_c_and_sigterm_to_the_caller():
     obs, *_ = vec.step(np.zeros(6, dtype=int))  # still serving
     assert obs.shape == (6, 4)
     vec.close()
+
+
+LEFT_OPEN = """
+import gymnasium as gym
+from minitaur_env.training.vec_env import GroupedSubprocVecEnv
+
+if __name__ == "__main__":
+    vec = GroupedSubprocVecEnv([lambda: gym.make("CartPole-v1")] * 4, n_processes=3)
+    vec.reset()
+    raise SystemExit("ended with its env open")
+"""
+
+
+def test_a_script_that_ends_with_its_env_open_still_exits(tmp_path):
+    script = tmp_path / "left_open.py"
+    script.write_text(LEFT_OPEN)
+    # Without the exit handler this run waits forever on workers that ignore SIGTERM.
+    ended = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=300
+    )
+    assert ended.returncode == 1 and ended.stderr.splitlines()[-1] == "ended with its env open"

@@ -14,7 +14,9 @@ the same transitions as a ``DummyVecEnv`` of all the envs.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
+import functools
 import itertools
 import multiprocessing as mp
 import os
@@ -124,6 +126,13 @@ def _group_worker(
             group.close()
 
 
+def _kill_workers(processes: list[Any]) -> None:
+    for process in processes:
+        if process.is_alive():
+            process.kill()
+            process.join(timeout=5.0)
+
+
 def _prepare_reset(group: DummyVecEnv, seeds: list[int | None], options: list[dict]) -> None:
     """Hand a group its slice of the seeds and options of the next reset."""
     # VecEnv.seed() gives consecutive seeds (or none), so a slice is its first + index.
@@ -191,6 +200,12 @@ class GroupedSubprocVecEnv(VecEnv):
         self.remotes: list[Connection] = []
         self.processes: list[Any] = []
         self.closed = False
+        # The workers ignore SIGTERM, so multiprocessing's own exit handler, which
+        # terminates daemonic children and then joins them, would wait forever for a
+        # worker of an env never closed (a script ending in an exception). Handlers run
+        # last-registered first, so this one kills them before that join.
+        self._kill_at_exit = functools.partial(_kill_workers, self.processes)
+        atexit.register(self._kill_at_exit)
         for group in self.groups[1:]:
             remote, work_remote = context.Pipe()
             fns = CloudpickleWrapper([env_fns[i] for i in group])
@@ -291,6 +306,7 @@ class GroupedSubprocVecEnv(VecEnv):
         if self.closed:
             return
         self.closed = True
+        atexit.unregister(self._kill_at_exit)
         for remote in self.remotes:
             with contextlib.suppress(BrokenPipeError, OSError):  # unless already gone
                 remote.send(("close", None))
