@@ -41,6 +41,7 @@ CONDITIONS: dict[str, dict[str, Any]] = {
     "contact friction 0.5": {"dynamics_ranges": {"foot_friction": [0.5, 0.5]}},
     "pushes": {"realism": {"pushes": True}},
     "sagittal pushes": {"realism": {"pushes": "sagittal"}},
+    "walking pushes": {"realism": {"pushes": "walking"}},
     "full preset": dict(RANDOMIZED_KWARGS),
 }
 

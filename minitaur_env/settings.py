@@ -77,8 +77,8 @@ class Realism:
       classic observation noise and bias reach the quaternion through the Euler angles.
     - ``pushes`` (None): ``True`` for Tan et al.'s pushes (130-220 N, horizontal, in a
       random direction, for 0.06 s every 1.2 s), ``"sagittal"`` (:meth:`Pushes.sagittal`),
-      or a :class:`Pushes` or mapping of its fields; the force of each step is
-      ``info["push_force"]``.
+      ``"walking"`` (:meth:`Pushes.walking`), or a :class:`Pushes` or mapping of its
+      fields; the force of each step is ``info["push_force"]``.
 
     :meth:`tan2018` gives Table I's timing and IMU ranges.
     """

@@ -524,6 +524,9 @@ def test_heading_pushes_turn_with_the_robot_and_the_bound_spares_the_axis():
     assert max(reach) <= 1 + 1e-9 and max(reach) > 0.99  # inside the ellipse, up to its edge
     assert max(uncapped_sides) > 140.0  # control: without the bound the sides get it all
     assert Pushes.coerce("sagittal") == Pushes(heading=True, bound=(130.0, 60.0))
+    assert Pushes.coerce("walking") == Pushes(heading=True, bound=(40.0, 20.0))
+    with pytest.raises(ValueError, match="pushes must be True, 'tan2018', 'sagittal', 'walking'"):
+        Pushes.coerce("trotting")
     assert Pushes.coerce("tan2018") == Pushes.coerce(True) == Pushes()
     with pytest.raises(ValueError, match=r"Pushes\.bound across must be in \(0, 10000\] N"):
         Pushes(bound=(130.0, 0.0))
