@@ -646,10 +646,11 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
         assert load_hyperparams("ppo", env) == {**ppo, "learning_rate": "lin_2.5e-4"}
     for env in ("MinitaurBulletDuckEnv-v0", "MinitaurBulletRandomized-v0"):
         assert load_hyperparams("ppo", env) == ppo
-    assert load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0")["learning_rate"] == 2.5e-4
     history = load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-history")
+    assert history["learning_rate"] == 2.5e-4
     decay = load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-history-decay")
     assert decay == {**history, "n_timesteps": 1_000_000, "learning_rate": "lin_2.5e-4"}
+    assert load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0") == decay
 
 
 def test_runs_started_together_get_their_own_folders(tmp_path):
