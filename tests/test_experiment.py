@@ -764,7 +764,9 @@ def test_the_robust_ppos_env_runs_the_shipped_recipe_and_the_robust_entry_adds_p
         assert recipe.env_kwargs == shipped["env_kwargs"] == {"history": 4}
         assert recipe.hyperparams == shipped["hyperparams"]
         assert (recipe.n_timesteps, recipe.n_envs) == (shipped["n_timesteps"], shipped["n_envs"])
-    before = ExperimentConfig.resolve("ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-history")
+    before = ExperimentConfig.resolve(
+        "ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-history"
+    )
     assert recipe.hyperparams == {**before.hyperparams, "learning_rate": "lin_2.5e-4"}
     config = ExperimentConfig.resolve("ppo", "MinitaurBulletTrotRandomized-v0", entry="robust")
     assert config.env_kwargs == {"history": 4, "realism": {"pushes": "sagittal"}}
