@@ -149,7 +149,12 @@ def evaluate_parser(prog: str = "evaluate.py") -> argparse.ArgumentParser:
     load.add_argument("--load-best", action="store_true", help="the run's best_model.zip")
     load.add_argument("--load-checkpoint", type=int, metavar="N", help="rl_model_N_steps.zip")
     load.add_argument("--load-last-checkpoint", action="store_true", help="the newest checkpoint")
-    add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
+    add(
+        "--episodes",
+        type=int,
+        default=20,
+        help="evaluation episodes (default: 20; 0 with --render-video or --gui: only those)",
+    )
     add("--seed", type=int, default=REPORT_SEED, help="seed of episode 0; episode i uses seed + i")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument(
@@ -188,6 +193,10 @@ def run_evaluate(args: argparse.Namespace, argv: list[str], prog: str) -> int:
 
     if args.episodes < 0:
         raise UsageError("--episodes must be >= 0")
+    if args.episodes == 0 and args.json is not None:
+        raise UsageError("--json: --episodes 0 plays no statistics to write")
+    if args.episodes == 0 and not (args.render_video or args.gui):
+        raise UsageError("--episodes 0 plays nothing; add --render-video or --gui")
     if args.seed < 0:
         raise UsageError(f"--seed {args.seed}: episode seeds must be >= 0")
     if args.video_episodes < 1:
@@ -332,7 +341,12 @@ def package_parser(prog: str = "minitaur package") -> argparse.ArgumentParser:
     add("run_or_model", type=Path, help="a run folder (its final model) or a model zip")
     add("-o", "--out", type=Path, default=Path("hub"), help="parent folder (default: hub)")
     add("--env", help="env id (default: the one the model was trained on)")
-    add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
+    add(
+        "--episodes",
+        type=int,
+        default=20,
+        help="evaluation episodes (default: 20; 0 with --render-video or --gui: only those)",
+    )
     add("--seed", type=int, default=REPORT_SEED, help="seed of episode 0 (default: %(default)s)")
     add("--video-steps", type=int, default=1000, help="env steps in replay.mp4 (default: 1000)")
     add_trust_pickle(parser)

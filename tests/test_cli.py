@@ -191,6 +191,11 @@ def test_a_user_error_is_one_line_and_exit_2_in_every_command(tmp_path, monkeypa
     cases = {
         ("evaluate", "--model", "no/such.zip"): "model file not found",
         ("evaluate", "--episodes", "-1"): "--episodes must be >= 0",
+        # Exiting 0 with nothing played, or without the asked-for JSON, was silent:
+        ("evaluate", "--episodes", "0"): "--episodes 0 plays nothing; add --render-video",
+        ("evaluate", "--episodes", "0", "--render-video", "--json", "s.json"): (
+            "--json: --episodes 0 plays no statistics to write"
+        ),
         ("onnx", "no/such/run"): "no/such/run",
         ("package", "no/such/run"): "model file not found: no/such/run",
         ("package", "no/such/run", "--video-steps", "0"): "--video-steps must be >= 1",
