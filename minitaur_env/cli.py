@@ -341,12 +341,7 @@ def package_parser(prog: str = "minitaur package") -> argparse.ArgumentParser:
     add("run_or_model", type=Path, help="a run folder (its final model) or a model zip")
     add("-o", "--out", type=Path, default=Path("hub"), help="parent folder (default: hub)")
     add("--env", help="env id (default: the one the model was trained on)")
-    add(
-        "--episodes",
-        type=int,
-        default=20,
-        help="evaluation episodes (default: 20; 0 with --render-video or --gui: only those)",
-    )
+    add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
     add("--seed", type=int, default=REPORT_SEED, help="seed of episode 0 (default: %(default)s)")
     add("--video-steps", type=int, default=1000, help="env steps in replay.mp4 (default: 1000)")
     add_trust_pickle(parser)
