@@ -311,6 +311,7 @@ def ship_parser(prog: str = "minitaur ship") -> argparse.ArgumentParser:
     add("--report-seed", type=int, default=REPORT_SEED, help="seed of report episode 0")
     add("--json", type=Path, help="write the whole report here")
     add("--ship", type=Path, help="write the chosen model here (a zoo run folder)")
+    add("--replace", action="store_true", help="let --ship replace a folder already there")
     add_trust_pickle(parser, "(SBX models, statistics without their JSON)")
     return parser
 
@@ -344,6 +345,7 @@ def package_parser(prog: str = "minitaur package") -> argparse.ArgumentParser:
     add("--episodes", type=int, default=20, help="evaluation episodes (default: 20)")
     add("--seed", type=int, default=REPORT_SEED, help="seed of episode 0 (default: %(default)s)")
     add("--video-steps", type=int, default=1000, help="env steps in replay.mp4 (default: 1000)")
+    add("--replace", action="store_true", help="replace an <out>/<algo>-<env>/ already there")
     add_trust_pickle(parser)
     return parser
 

@@ -135,6 +135,19 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
     assert provenance["training"]["model"] == f"MinitaurBulletEnv-v0.zip of {kept}"
     # Training ended inside an unlogged episode: the final model's time was NaN here.
     assert provenance["training"]["wall_clock_min_to_model"] > 0
+    # A shipped folder may be the only copy of an agent: shipping over it must be asked for.
+    before = {p: p.read_bytes() for p in shipped.rglob("*") if p.is_file()}
+    again = ("--final-only", "--episodes", "1", "--report-seed", "777", "--ship", str(shipped))
+    refused = run_main(ship_main, str(kept), *again, cwd=tmp_path)
+    assert refused.returncode == 2
+    assert error_lines(refused.stderr) == [
+        f"python -m minitaur_env.ship: error: --ship: {shipped} is already there; "
+        "add --replace to replace it"
+    ]
+    assert {p: p.read_bytes() for p in shipped.rglob("*") if p.is_file()} == before
+    replaced = run_main(ship_main, str(kept), *again, "--replace", cwd=tmp_path)  # control
+    assert replaced.returncode == 0, replaced.stderr
+    assert yaml.safe_load(RunFolder(shipped).provenance.read_text())["eval_seeds"] == "777..777"
 
 
 def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(

@@ -256,6 +256,19 @@ def test_a_hub_folder_holds_the_zoo_layout_and_a_card_the_hub_parses(workdir, be
     assert error_lines(missing.stderr) == [
         "python -m minitaur_env.package: error: model file not found: no/such/run"
     ]
+    # Packaging again over the folder is refused unless asked for, before any episode.
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    again = (str(best_model.parent), "-o", "hub", "--episodes", "1", "--video-steps", "8")
+    refused = run_main(package_main, *again, cwd=workdir)
+    assert refused.returncode == 2
+    assert error_lines(refused.stderr) == [
+        f"python -m minitaur_env.package: error: -o: {Path('hub') / folder.name} is already "
+        "there; add --replace to replace it"
+    ]
+    assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before
+    replaced = run_main(package_main, *again, "--replace", cwd=workdir)  # control
+    assert replaced.returncode == 0, replaced.stderr[-2000:]
+    assert json.loads((folder / "results.json").read_text())["n_eval_episodes"] == 1
 
 
 def test_render_video_writes_mp4_and_gif(workdir, best_model):

@@ -247,6 +247,7 @@ def package(args: argparse.Namespace) -> int:
         args.seed,
         args.video_steps,
         args.trust_pickle,
+        args.replace,
     )
     print(f"hub folder: {folder}")
     return 0
@@ -270,7 +271,7 @@ def export_onnx(args: argparse.Namespace) -> int:
 
 def ship(args: argparse.Namespace) -> int:
     """minitaur ship: select a policy on unreported seeds, and ship it."""
-    from minitaur_env.training.files import ensure_writable, write_text
+    from minitaur_env.training.files import ensure_writable, refuse_to_replace, write_text
     from minitaur_env.training.hyperparams import parse_overrides
     from minitaur_env.training.run_folder import RunFolder
     from minitaur_env.training.seeds import judging_block
@@ -303,6 +304,7 @@ def ship(args: argparse.Namespace) -> int:
                 f"<env>_<N>, e.g. {args.ship.parent / (names[0] + '_1')}"
             )
         ensure_writable(args.ship.parent)
+        refuse_to_replace(args.ship, args.replace, "--ship")
     if args.json:
         ensure_writable(args.json.parent)
     report = select(

@@ -38,6 +38,13 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         temp.unlink(missing_ok=True)
 
 
+def refuse_to_replace(path: Path, replace: bool, flag: str) -> None:
+    """A published folder (a shipped policy, a Hub folder) is replaced only when asked:
+    the one there may be the only copy of an agent and its provenance."""
+    if path.exists() and not replace:
+        raise UsageError(f"{flag}: {path} is already there; add --replace to replace it")
+
+
 @contextlib.contextmanager
 def replaced_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     """A new folder, named as ``path``, that replaces ``path`` only if the block succeeds.

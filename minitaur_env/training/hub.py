@@ -27,7 +27,12 @@ from minitaur_env.training.evaluation import (
     playing_kwargs,
     summarize,
 )
-from minitaur_env.training.files import ensure_writable, read_yaml, replaced_folder
+from minitaur_env.training.files import (
+    ensure_writable,
+    read_yaml,
+    refuse_to_replace,
+    replaced_folder,
+)
 from minitaur_env.training.run_folder import (
     HUB_VECNORMALIZE,
     ONNX_POLICY,
@@ -46,8 +51,9 @@ def package_for_hub(
     seed: int = REPORT_SEED,
     video_steps: int = 1000,
     trust_pickle: bool = False,
+    replace: bool = False,
 ) -> Path:
-    """Write ``<out_dir>/<algo>-<env>/`` and return it."""
+    """Write ``<out_dir>/<algo>-<env>/`` and return it; an existing one only if ``replace``."""
     if episodes < 1:
         raise UsageError("--episodes must be >= 1: the model card reports an evaluation")
     if video_steps < 1:
@@ -64,6 +70,7 @@ def package_for_hub(
     if not env_id:
         raise UsageError(f"{policy.path}: no run config names its env; pass --env")
     name = f"{policy.algo}-{env_name(env_id)}"
+    refuse_to_replace(out_dir / name, replace, "-o")
     # Written aside, swapped in whole: a failure leaves an earlier folder as it was.
     with replaced_folder(out_dir / name) as staged:
         _write_hub_folder(policy, env_id, staged, name, episodes, seed, video_steps, trust_pickle)
