@@ -853,6 +853,22 @@ def test_mirror_where_there_is_no_mirror_image_is_one_line(algo, env, hyperparam
         experiment_module.check_buildable(config)
 
 
+def test_checking_a_many_env_rollout_does_not_warn_with_the_stand_in_env_count(recwarn):
+    """A sweep checks its settings with one env standing in for n_envs: SB3's rollout
+    warning would then name a buffer of n_steps x 1 that no trial will have."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    hyperparams = {"n_steps": 64, "batch_size": 256}
+    config = ExperimentConfig.resolve("ppo", "Pendulum-v1", hyperparams=hyperparams, n_envs=32)
+    experiment_module.check_buildable(config)
+    assert not [w for w in recwarn if "mini-batch" in str(w.message)]
+    # the warning the check keeps quiet: the same settings built on the one stand-in env
+    env = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
+    with pytest.warns(UserWarning, match="n_steps \\* n_envs = 64"):
+        experiment_module.new_model(config, env)
+    env.close()
+
+
 def test_mirror_refuses_an_observation_that_only_has_the_classic_size():
     from gymnasium import spaces
 

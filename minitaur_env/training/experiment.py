@@ -19,6 +19,7 @@ from __future__ import annotations
 import shutil
 import sys
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -446,6 +447,10 @@ def check_buildable(config: ExperimentConfig) -> None:
     config.validate()
     env = DummyVecEnv([lambda: make_env(config.env, config.env_kwargs)])
     try:
-        new_model(config, env)
+        # One env stands in for n_envs here: SB3's warnings on the rollout size would
+        # name the wrong numbers, and the trial's own build warns with the right ones.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            new_model(config, env)
     finally:
         env.close()
