@@ -199,6 +199,28 @@ def test_resume_repairs_a_torn_monitor_line_and_an_unreadable_evaluations_file(t
     assert result.best_eval == best_after
 
 
+def test_a_rewind_keeps_the_monitor_lines_it_keeps_byte_for_byte(tmp_path):
+    from stable_baselines3.common.monitor import ResultsWriter
+
+    run = RunFolder(tmp_path / "run")
+    run.monitor_dir.mkdir(parents=True)
+    monitor = run.monitor_dir / "0.monitor.csv"
+    writer = ResultsWriter(str(monitor), header={"t_start": 0.0, "env_id": "Pendulum-v1"})
+    for episode in range(5):  # as SB3 writes them: csv's CRLF line ends
+        writer.write_row({"r": -1.5 * episode, "l": 100, "t": float(episode + 1)})
+    writer.close()
+    written = monitor.read_bytes()
+    assert written.count(b"\r\n") == 6  # the header's r,l,t and five episodes
+    with monitor.open("ab") as handle:
+        handle.write(b"-9.0,100,6.0\r")  # killed between the line's \r and its \n
+    said = []
+    run.rewind_logs(250, log=said.append)
+    kept = written.splitlines(True)[:4]  # the JSON line, r,l,t and the two episodes to 200
+    assert monitor.read_bytes() == b"".join(kept)
+    assert any("dropped a partial last line" in line for line in said)
+    assert [episode.length for episode in run.monitor_episodes()] == [100, 100]
+
+
 def test_two_processes_never_train_one_run_and_a_killed_one_leaves_no_lock(tmp_path):
     import subprocess
     import sys

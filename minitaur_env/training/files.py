@@ -108,9 +108,17 @@ def read_yaml(path: str | os.PathLike[str], what: str = "YAML file") -> Any:
         raise UsageError(f"{what} {path} is not valid YAML: {error}") from error
 
 
+def read_lines(path: Path) -> list[str]:
+    """The file's lines, each with its line ending as written: a log rewritten from these
+    keeps SB3's CRLF monitor lines byte for byte, and a line torn after its ``\\r`` still
+    reads as unfinished."""
+    with path.open(newline="") as handle:
+        return handle.read().splitlines(True)
+
+
 def write_text(path: Path, text: str) -> None:
     with atomic_path(path) as temporary:
-        temporary.write_text(text)
+        temporary.write_text(text, newline="")
 
 
 def write_yaml(path: Path, content: dict[str, Any], sort_keys: bool = True) -> None:

@@ -17,6 +17,7 @@ from minitaur_env.training import UsageError, env_name
 from minitaur_env.training.files import (
     atomic_path,
     ensure_writable,
+    read_lines,
     read_yaml,
     write_text,
     write_yaml,
@@ -380,7 +381,7 @@ class RunFolder:
         for progress in sorted(self.path.glob("progress*.csv")):
             self._rewind_progress(progress, steps)
         for monitor in sorted(self.monitor_dir.glob("*.monitor.csv")):
-            lines = monitor.read_text().splitlines(True)
+            lines = read_lines(monitor)
             if lines and not lines[-1].endswith("\n"):
                 write_text(monitor, "".join(lines[:-1]))
                 log(f"{monitor.name}: dropped a partial last line ({lines[-1]!r})")
@@ -400,17 +401,13 @@ class RunFolder:
             if done > steps:
                 dropped.setdefault(episode.monitor, set()).add(episode.line)
         for monitor, lines in dropped.items():
-            kept = [
-                text
-                for i, text in enumerate(monitor.read_text().splitlines(True))
-                if i not in lines
-            ]
+            kept = [text for i, text in enumerate(read_lines(monitor)) if i not in lines]
             write_text(monitor, "".join(kept))
 
     @staticmethod
     def _rewind_progress(progress: Path, steps: int) -> None:
         """Drop SB3's CSV rows logged after ``steps`` (and a row a kill tore)."""
-        lines = progress.read_text().splitlines(True)
+        lines = read_lines(progress)
         if not lines:
             return
         header = next(csv.reader(lines[:1]))
@@ -440,7 +437,7 @@ class RunFolder:
         episodes = []
         for monitor in sorted(self.monitor_dir.glob("*.monitor.csv")):
             session, offset, previous = 0, 0.0, 0.0
-            lines = monitor.read_text().splitlines()
+            lines = read_lines(monitor)
             for index, line in enumerate(lines[2:], start=2):  # a JSON header, then r,l,t
                 parsed = _episode(line)
                 if parsed is None:  # torn; a resume drops it and says so
