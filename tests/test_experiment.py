@@ -24,7 +24,6 @@ from minitaur_env.training import experiment as experiment_module
 from minitaur_env.training.aggregate import wall_clock_at
 from minitaur_env.training.algorithms import algorithm_class, load_model
 from minitaur_env.training.checkpoints import save_checked_checkpoint
-from minitaur_env.training.envs import FallPenalty
 from minitaur_env.training.files import load_pickle
 from minitaur_env.training.hyperparams import load_hyperparams
 from minitaur_env.training.policies import GainActor
@@ -72,27 +71,6 @@ class NanObservationAt(gym.Wrapper):
 for _name, _cls in (("RaisesValueError-v0", RaisesValueErrorAt), ("NanObs-v0", NanObservationAt)):
     if _name not in gym.registry:
         gym.register(_name, entry_point=_cls, max_episode_steps=200)
-
-
-class FallsAt25(gym.Wrapper):
-    """Pendulum whose episode terminates (as a fall does) at step 25."""
-
-    def __init__(self) -> None:
-        super().__init__(gym.make("Pendulum-v1"))
-        self.steps = 0
-
-    def reset(self, **kwargs):
-        self.steps = 0
-        return super().reset(**kwargs)
-
-    def step(self, action):
-        obs, reward, _, truncated, info = super().step(action)
-        self.steps += 1
-        return obs, reward, self.steps == 25, truncated, info
-
-
-if "FallingPendulum-v0" not in gym.registry:
-    gym.register("FallingPendulum-v0", entry_point=FallsAt25, max_episode_steps=200)
 if "ShortPendulum-v0" not in gym.registry:
     gym.register(
         "ShortPendulum-v0",
@@ -616,40 +594,6 @@ def test_a_push_curriculum_finds_the_pushes_in_realism_or_the_old_keyword(env_kw
             hyperparams=curriculum,
             env_kwargs={"realism": {"pushes": False}},
         )
-
-
-@pytest.mark.parametrize(
-    ("env", "penalty", "charged"),
-    [
-        ("FallingPendulum-v0", 2.0, 2.0),
-        ("FallingPendulum-v0", 0.0, 0.0),  # control: no penalty, no gap
-        ("ShortPendulum-v0", 2.0, 0.0),  # control: a time limit is not a fall
-    ],
-)
-def test_a_fall_penalty_charges_the_learner_for_terminations_only(tmp_path, env, penalty, charged):
-    hyperparams = {"fall_penalty": penalty} if penalty else {}
-    experiment = pendulum(tmp_path, env=env, hyperparams=hyperparams)
-    experiment.run()
-    learned = experiment.model.replay_buffer.rewards[:100, 0].reshape(4, 25)
-    monitor = experiment.run_folder.monitor_dir / "0.monitor.csv"
-    logged = [float(line.split(",")[0]) for line in monitor.read_text().splitlines()[2:6]]
-    assert learned.sum(axis=1) == pytest.approx(np.array(logged) - charged, abs=1e-3)
-    # Only the last step carries it: the first 24 rewards are the env's own (at most 0).
-    assert (learned[:, :24] <= 0).all() and (learned[:, 24] < -charged + 1e-3).all()
-    assert experiment.eval_env.env_is_wrapped(FallPenalty) == [False]
-
-    resumed = Experiment.resume(experiment.run_folder.path, n_timesteps=250, verbose=0)
-    resumed.build()
-    assert resumed.env.env_is_wrapped(FallPenalty) == [bool(penalty)]
-    resumed.close()
-
-
-@pytest.mark.parametrize("penalty", [-1, "five", True, float("nan"), float("inf")])
-def test_a_bad_fall_penalty_is_one_line(penalty):
-    with pytest.raises(
-        UsageError, match=re.escape(f"fall_penalty must be a number >= 0, got {penalty!r}")
-    ):
-        ExperimentConfig.resolve("sac", "Pendulum-v1", hyperparams={"fall_penalty": penalty})
 
 
 @pytest.mark.parametrize(

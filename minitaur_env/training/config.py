@@ -14,7 +14,6 @@ from minitaur_env.training.hyperparams import (
     RUN_KEYS,
     algorithm_kwargs,
     entropy_decay,
-    fall_penalty,
     load_hyperparams,
     mirrored,
     push_curriculum,
@@ -143,7 +142,6 @@ class ExperimentConfig:
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)
-        fall_penalty(self.hyperparams)
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
 

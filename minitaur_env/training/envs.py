@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, SupportsFloat
+from typing import Any
 
-import gymnasium as gym
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import (
     DummyVecEnv,
@@ -18,7 +17,6 @@ from minitaur_env.training.single_env import make_env, qualified_env_id
 from minitaur_env.training.vec_env import GroupedSubprocVecEnv, available_cores
 
 __all__ = [
-    "FallPenalty",
     "NanGuard",
     "make_env",
     "make_eval_env",
@@ -42,21 +40,6 @@ class NanGuard(VecCheckNan):
             raise TrainingDiverged(" ".join(str(error).split())) from None
 
 
-class FallPenalty(gym.Wrapper):
-    """Takes ``penalty`` off the reward of a step that terminates the episode; outside the
-    Monitor, which keeps the env's own returns."""
-
-    def __init__(self, env: gym.Env, penalty: float) -> None:
-        super().__init__(env)
-        self.penalty = penalty
-
-    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        if terminated:
-            reward = float(reward) - self.penalty
-        return obs, reward, terminated, truncated, info
-
-
 def resolve_vec_env(vec_env: str, n_envs: int) -> str:
     """``auto``: grouped over the cores for several envs, else one env in this process."""
     if vec_env == "auto":
@@ -72,11 +55,9 @@ def make_training_env(
     vec_env: str = "auto",
     monitor_dir: str | None = None,
     append_monitor: bool = False,
-    fall_penalty: float = 0.0,
 ) -> VecEnv:
     """Monitored, vectorized env that raises TrainingDiverged as soon as a NaN reaches it
-    or leaves it; ``fall_penalty`` is taken off a terminating step's reward after the
-    monitor.
+    or leaves it.
 
     ``vec_env="auto"`` runs several envs grouped over the CPU cores (the same
     transitions as a DummyVecEnv, faster) and a single env in this process.
@@ -95,8 +76,6 @@ def make_training_env(
         monitor_dir=monitor_dir,
         monitor_kwargs={"override_existing": not append_monitor},
         vec_env_cls=VEC_ENV_CLASSES[vec_env],
-        wrapper_class=FallPenalty if fall_penalty else None,
-        wrapper_kwargs={"penalty": fall_penalty} if fall_penalty else None,
     )
     return NanGuard(env)
 

@@ -32,11 +32,6 @@ CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY)  # read by callbacks, n
 # ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
 # happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
 MIRROR_KEY = "mirror"
-# ``fall_penalty: 5``: subtracted from the reward of the step on which a training episode
-# terminates (a fall; the env's ``distance_limit`` is off by default). The learner sees it;
-# the monitor files, evaluations and every reported return keep the env's own reward.
-# Without it a fall costs only the discounted reward it forgoes (about 2 at gamma 0.99).
-FALL_PENALTY_KEY = "fall_penalty"
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -115,7 +110,6 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
             "gamma": kwargs.get("gamma", 0.99),
         }
     kwargs.pop(MIRROR_KEY, None)
-    kwargs.pop(FALL_PENALTY_KEY, None)
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
         if not isinstance(value, str):
@@ -198,13 +192,3 @@ def mirrored(hyperparams: dict[str, Any]) -> bool:
     if value and "replay_buffer_class" in hyperparams:
         raise UsageError(f"{MIRROR_KEY}: sets the replay buffer itself; drop replay_buffer_class")
     return value
-
-
-def fall_penalty(hyperparams: dict[str, Any]) -> float:
-    """The ``fall_penalty`` entry (reward taken off a training episode's last step when the
-    env terminates it), 0 without one."""
-    value = hyperparams.get(FALL_PENALTY_KEY, 0)
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if not number or not 0 <= value < float("inf"):
-        raise UsageError(f"{FALL_PENALTY_KEY} must be a number >= 0, got {value!r}")
-    return float(value)
