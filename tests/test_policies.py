@@ -188,6 +188,56 @@ def test_held_noise_repeats_the_exploring_draw_for_its_steps_and_no_longer(tmp_p
         )
 
 
+def test_colored_noise_is_correlated_in_time_seeded_and_leaves_the_deterministic_policy(tmp_path):
+    def policy(color: float, seed: int = 0) -> SAC:
+        return SAC(
+            StabilizedSACPolicy,
+            gym.make("Pendulum-v1"),
+            seed=seed,
+            device="cpu",
+            policy_kwargs={"net_arch": [32, 32], "noise_color": color},
+            **SMALL,
+        )
+
+    obs = np.zeros((2, 3), dtype=np.float32)  # two envs, the same observation every step
+
+    def exploring(model: SAC, steps: int = 400) -> np.ndarray:
+        with torch.no_grad():  # the pre-squash noise: atanh of the action over its mean
+            mean, log_std, _ = model.policy.actor.get_action_dist_params(torch.as_tensor(obs))
+        actions = np.array([model.predict(obs, deterministic=False)[0] for _ in range(steps)])
+        gaussian = np.arctanh(np.clip(actions / 2.0, -0.999999, 0.999999))  # bounds ±2
+        return (gaussian - mean.numpy()) / log_std.exp().numpy()
+
+    def lag_one_correlation(noise: np.ndarray) -> float:
+        series = noise[:, 0, 0]
+        return float(np.corrcoef(series[:-1], series[1:])[0, 1])
+
+    pink, white = exploring(policy(1.0)), exploring(policy(0.0))
+    assert lag_one_correlation(pink) > 0.3  # pink noise: neighbouring steps alike
+    assert abs(lag_one_correlation(white)) < 0.15  # the control: SAC's white noise is not
+    assert 0.5 < pink.std() < 1.5  # unit variance, as SAC's own draw
+    assert not np.allclose(pink[:, 0], pink[:, 1])  # each env its own sequence
+    np.testing.assert_allclose(exploring(policy(1.0)), pink, atol=1e-5)  # the seed fixes it
+    assert not np.allclose(exploring(policy(1.0, seed=1)), pink, atol=1e-3)
+    colored = policy(1.0)
+    np.testing.assert_array_equal(  # no noise when deterministic, colored or not
+        colored.predict(obs, deterministic=True)[0], policy(0.0).predict(obs, deterministic=True)[0]
+    )
+    colored.save(tmp_path / "pink.zip")
+    assert load_model(SAC, tmp_path / "pink.zip", device="cpu").policy.noise_color == 1.0
+    for bad in (-0.5, 2.5, True, "1"):
+        with pytest.raises(ValueError, match=r"noise_color must be a number in \[0, 2\]"):
+            policy(bad)
+    with pytest.raises(ValueError, match="two kinds of exploring noise; pick one"):
+        SAC(
+            StabilizedSACPolicy,
+            gym.make("Pendulum-v1"),
+            device="cpu",
+            policy_kwargs={"noise_color": 1.0, "noise_hold": 4},
+            **SMALL,
+        )
+
+
 def test_action_gain_multiplies_and_clips_the_action_and_counts_the_gain_in_its_log_prob(
     tmp_path,
 ):

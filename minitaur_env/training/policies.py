@@ -1,6 +1,6 @@
 """SAC policies with the stabilizers the SAC ablation measures (docs/results.md, "Stabilizing SAC").
 
-``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with five opt-in changes, each a policy
+``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with six opt-in changes, each a policy
 keyword so that SB3's own ``SAC`` class trains it unchanged:
 
 - ``critic_layer_norm``: LayerNorm after every hidden linear layer of the critics (DroQ,
@@ -14,6 +14,13 @@ keyword so that SB3's own ``SAC`` class trains it unchanged:
   ``noise_hold`` steps and held in between (per env), so exploration is correlated in
   time, as SBX's SAC explores with ``use_sde`` (it reuses one noise draw per rollout).
   Updates and evaluations are unchanged.
+- ``noise_color``: the exploring action's Gaussian noise is colored noise with a power
+  spectrum ``1 / f ** noise_color`` per env and action dimension (Eberhard et al. 2023,
+  "Pink noise is all you need"; ``pink-noise-rl``'s process, cut every 1000 steps, the
+  classic time limit, as the paper sets it to the episode length): 0 is SAC's own white
+  noise, 1 pink, 2 red. Between white noise and the held draw, it keeps some of the
+  held noise's low frequencies without holding one draw for a whole stride. Updates
+  and evaluations are unchanged.
 - ``action_gain``: the actor's squashed action is multiplied by the gain and clipped to
   [-1, 1], so the motor limits are reached at ``tanh(u) = ±1/gain``, where the squashing
   costs the Gaussian little entropy, instead of at tanh's asymptote. The log-probability
@@ -31,7 +38,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 import torch
+from pink import ColoredNoiseProcess
 from stable_baselines3.common.policies import ContinuousCritic
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
 from stable_baselines3.sac.policies import Actor, SACPolicy
@@ -40,6 +49,9 @@ from torch import nn
 from minitaur_env.training import UsageError
 
 POLICY_NAME = "StabilizedMlpPolicy"
+# Steps per colored-noise sequence: the classic 1000-step time limit, as Eberhard et al.
+# set it to the episode length (a longer one adds periods no episode can use).
+COLORED_NOISE_STEPS = 1000
 
 
 class LayerNormCritic(ContinuousCritic):
@@ -114,6 +126,7 @@ class StabilizedSACPolicy(SACPolicy):
         max_grad_norm: float | None = None,
         actor_ema: float | None = None,
         noise_hold: int = 1,
+        noise_color: float = 0.0,
         action_gain: float = 1.0,
         **kwargs: Any,
     ) -> None:
@@ -123,6 +136,12 @@ class StabilizedSACPolicy(SACPolicy):
             raise ValueError(f"action_gain must be a number >= 1, got {action_gain}")
         if isinstance(noise_hold, bool) or not isinstance(noise_hold, int) or noise_hold < 1:
             raise ValueError(f"noise_hold must be a whole number of steps >= 1, got {noise_hold}")
+        if isinstance(noise_color, bool) or not isinstance(noise_color, (int, float)):
+            raise ValueError(f"noise_color must be a number in [0, 2], got {noise_color!r}")
+        if not 0 <= noise_color <= 2:
+            raise ValueError(f"noise_color must be a number in [0, 2], got {noise_color}")
+        if noise_color and noise_hold > 1:
+            raise ValueError("noise_color and noise_hold: two kinds of exploring noise; pick one")
         if max_grad_norm is not None and not max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be > 0, got {max_grad_norm}")
         if actor_ema is not None and not 0 < actor_ema < 1:
@@ -135,9 +154,13 @@ class StabilizedSACPolicy(SACPolicy):
         self.action_gain = float(action_gain)
         self._held_noise: torch.Tensor | None = None
         self._held_steps = 0
+        self.noise_color = float(noise_color)
+        self._colored_noise: ColoredNoiseProcess | None = None
         super().__init__(*args, **kwargs)
         if noise_hold > 1 and self.actor_kwargs.get("use_sde"):
             raise ValueError("noise_hold holds SAC's own noise; it does not combine with use_sde")
+        if noise_color and self.actor_kwargs.get("use_sde"):
+            raise ValueError("noise_color colors SAC's own noise; it does not combine with use_sde")
 
     def _build(self, lr_schedule: Any) -> None:
         super()._build(lr_schedule)
@@ -181,15 +204,33 @@ class StabilizedSACPolicy(SACPolicy):
     def _predict(self, observation: Any, deterministic: bool = False) -> torch.Tensor:
         if deterministic and self.averaged_actor is not None:
             return self.averaged_actor(observation, deterministic=True)
-        if deterministic or self.noise_hold == 1:
+        if deterministic or (self.noise_hold == 1 and not self.noise_color):
             return self.actor(observation, deterministic)
         mean, log_std, _ = self.actor.get_action_dist_params(observation)
+        noise = self._colored(mean) if self.noise_color else self._held(mean)
+        return motor_action(self.actor, torch.tanh(mean + log_std.exp() * noise))
+
+    def _held(self, mean: torch.Tensor) -> torch.Tensor:
         held = self._held_noise
         if held is None or held.shape != mean.shape or self._held_steps >= self.noise_hold:
             self._held_noise = held = torch.randn_like(mean)
             self._held_steps = 0
         self._held_steps += 1
-        return motor_action(self.actor, torch.tanh(mean + log_std.exp() * held))
+        return held
+
+    def _colored(self, mean: torch.Tensor) -> torch.Tensor:
+        process = self._colored_noise
+        if process is None or tuple(process.size[:-1]) != tuple(mean.shape):
+            # Seeded from torch's generator, so the run's seed fixes the noise as it fixes
+            # SAC's own draws.
+            seed = int(torch.randint(2**62, (1,)).item())
+            process = ColoredNoiseProcess(
+                beta=self.noise_color,
+                size=(*mean.shape, COLORED_NOISE_STEPS),
+                rng=np.random.default_rng(seed),
+            )
+            self._colored_noise = process
+        return torch.as_tensor(process.sample(), dtype=mean.dtype, device=mean.device)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -198,6 +239,7 @@ class StabilizedSACPolicy(SACPolicy):
             max_grad_norm=self.max_grad_norm,
             actor_ema=self.actor_ema,
             noise_hold=self.noise_hold,
+            noise_color=self.noise_color,
             action_gain=self.action_gain,
         )
         return data
