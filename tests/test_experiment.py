@@ -619,6 +619,7 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, backend, hyperp
         ("sac", None),
         ("sac", "minitaur-gain"),
         ("sac", "minitaur-mirror"),
+        ("sac", "minitaur-pink"),
         ("tqc", None),
         ("crossq", None),
     ],
@@ -643,9 +644,12 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     assert result.status == "completed" and result.num_timesteps == 64
     actor = load_model(algorithm_class(algo), result.run.final_model, device="cpu").policy.actor
     assert isinstance(actor, GainActor) == (name == "minitaur-gain")
+    colored = getattr(experiment.model.policy, "noise_color", 0.0)
+    assert colored == (1.0 if name == "minitaur-pink" else 0.0)
     buffer = type(experiment.model.replay_buffer).__name__
     assert (buffer == "MirroredReplayBuffer") == bool(entry.get("mirror"))
-    mirror_entries = [("sac", None), ("sac", "minitaur-mirror")]  # None: the env's own entry
+    # None: the env's own entry
+    mirror_entries = [("sac", None), ("sac", "minitaur-mirror"), ("sac", "minitaur-pink")]
     assert bool(entry.get("mirror")) == ((algo, name) in mirror_entries)
 
 
