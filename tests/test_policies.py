@@ -317,7 +317,7 @@ def test_the_policy_and_its_held_noise_train_resume_export_and_bad_values_are_on
         Experiment.create(config(actor_ema=1.5), tmp_path, verbose=0).run()
 
 
-def test_the_torch_policy_name_on_sbx_is_one_line_not_a_traceback(tmp_path):
+def test_the_torch_only_keys_on_sbx_are_one_line_not_a_traceback(tmp_path):
     needs("sbx")
     config = ExperimentConfig.resolve(
         "sac",
@@ -327,8 +327,71 @@ def test_the_torch_policy_name_on_sbx_is_one_line_not_a_traceback(tmp_path):
         save_freq=0,
         vec_env="dummy",
         backend="sbx",
-        hyperparams={**SMALL, "policy": POLICY_NAME},
+        hyperparams={
+            **SMALL,
+            "policy": POLICY_NAME,
+            "policy_kwargs": {"noise_color": 1.0, "critic_layer_norm": True},
+        },
     )
-    with pytest.raises(UsageError, match="a PyTorch policy for --backend sb3"):
+    with pytest.raises(UsageError, match="takes noise_color, not critic_layer_norm"):
         Experiment.create(config, tmp_path, verbose=0).run()
     assert not any(tmp_path.rglob("config.yml"))  # the run that never started is gone
+
+
+def test_colored_noise_on_sbx_explores_as_on_torch_trains_saves_and_resumes(tmp_path):
+    needs("sbx")
+    from sbx import SAC as SbxSAC
+
+    from minitaur_env.training.algorithms import infer_algo
+    from minitaur_env.training.safe_load import UntrustedPickle, load_sb3_model
+    from minitaur_env.training.sbx_policies import ColoredNoiseSACPolicy
+
+    def policy(color: float, seed: int = 0) -> SbxSAC:
+        kwargs = {"net_arch": [32, 32], "noise_color": color}
+        return SbxSAC(
+            ColoredNoiseSACPolicy, gym.make("Pendulum-v1"), seed=seed, policy_kwargs=kwargs
+        )
+
+    obs = np.zeros((2, 3), dtype=np.float32)
+
+    def lag_one_correlation(model: SbxSAC) -> float:
+        actions = np.array([model.predict(obs, deterministic=False)[0] for _ in range(300)])
+        series = np.arctanh(np.clip(actions[:, 0, 0] / 2.0, -0.999999, 0.999999))
+        return float(np.corrcoef(series[:-1], series[1:])[0, 1])
+
+    assert lag_one_correlation(policy(1.0)) > 0.3
+    assert abs(lag_one_correlation(policy(0.0))) < 0.15  # the control: SBX's white noise
+    first = [policy(1.0).predict(obs, deterministic=False)[0] for _ in range(2)]
+    np.testing.assert_allclose(first[0], first[1])  # the seed fixes the noise
+    assert not np.allclose(policy(1.0, seed=1).predict(obs, deterministic=False)[0], first[0])
+    np.testing.assert_array_equal(
+        policy(1.0).predict(obs, deterministic=True)[0],
+        policy(0.0).predict(obs, deterministic=True)[0],
+    )
+
+    def config(**changes):
+        return ExperimentConfig.resolve(
+            "sac",
+            "Pendulum-v1",
+            n_timesteps=60,
+            eval_freq=0,
+            save_freq=30,
+            vec_env="dummy",
+            backend="sbx",
+            hyperparams={
+                **SMALL,
+                "policy": POLICY_NAME,
+                "policy_kwargs": {"net_arch": [8], "noise_color": 1.0},
+            },
+            **changes,
+        )
+
+    result = Experiment.create(config(), tmp_path, verbose=0).run()
+    assert result.status == "completed"
+    assert infer_algo(result.run.final_model) == ("sac", "sbx")
+    resumed = Experiment.resume(result.run.path, n_timesteps=90, trust_pickle=True, verbose=0)
+    assert resumed.run().status == "completed" and resumed.resumed_at == 60
+    loaded = SbxSAC.load(result.run.final_model)
+    assert isinstance(loaded.policy, ColoredNoiseSACPolicy) and loaded.policy.noise_color == 1.0
+    with pytest.raises(UntrustedPickle):  # flax parameters are pickled: only with opt-in
+        load_sb3_model(SbxSAC, result.run.final_model)

@@ -31,6 +31,9 @@ ALGORITHMS: dict[str, type[BaseAlgorithm] | None] = {
 }
 assert tuple(ALGORITHMS) == ALGORITHM_NAMES
 OFF_POLICY = {"sac", "td3", "tqc", "crossq"}
+# StabilizedMlpPolicy's SBX counterpart (minitaur_env.training.sbx_policies); named here,
+# not imported, so that telling a zip's backend needs no JAX.
+SBX_POLICY_MODULE = "minitaur_env.training.sbx_policies"
 
 
 def algorithm_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
@@ -64,6 +67,12 @@ def load_model(cls: type[BaseAlgorithm], path: Path, **kwargs: Any) -> BaseAlgor
         return cls.load(path, **kwargs)
 
 
+def saved_backend(policy_module: str) -> str:
+    """ "sbx" or "sb3", from the module of a saved model's policy class."""
+    sbx = policy_module.startswith("sbx.") or policy_module == SBX_POLICY_MODULE
+    return "sbx" if sbx else "sb3"
+
+
 def infer_algo(path: Path) -> tuple[str, str]:
     """(algorithm, backend) of an SB3/SBX zip, from the module of its saved policy class."""
     try:
@@ -74,11 +83,11 @@ def infer_algo(path: Path) -> tuple[str, str]:
     from minitaur_env.training import policies  # imports torch
 
     module = str(data.get("policy_class", {}).get("__module__", ""))
-    backend = "sbx" if module.startswith("sbx.") else "sb3"
+    backend = saved_backend(module)
     for name in ALGORITHM_NAMES:
         if f".{name}." in module or module.endswith(f".{name}"):
             return name, backend
-    if module == policies.__name__ and len(policies.POLICIES) == 1:  # our own, for SAC
+    if module in (policies.__name__, SBX_POLICY_MODULE) and len(policies.POLICIES) == 1:
         return next(iter(policies.POLICIES)), backend
     # PPO and A2C share SB3's common ActorCriticPolicy; only PPO clips.
     if module.endswith("common.policies"):

@@ -423,7 +423,9 @@ def new_model(config: ExperimentConfig, env: VecEnv) -> BaseAlgorithm:
     one UsageError."""
     try:
         return algorithm_class(config.algo, config.backend)(
-            resolve_policy(config.algo, config.policy, config.backend),
+            resolve_policy(
+                config.algo, config.policy, config.backend, config.hyperparams.get("policy_kwargs")
+            ),
             env,
             seed=config.seed,
             device=config.device,

@@ -54,6 +54,20 @@ POLICY_NAME = "StabilizedMlpPolicy"
 COLORED_NOISE_STEPS = 1000
 
 
+def checked_noise_color(value: Any) -> float:
+    """``noise_color`` as a float, or a one-line ValueError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 2:
+        raise ValueError(f"noise_color must be a number in [0, 2], got {value!r}")
+    return float(value)
+
+
+def colored_noise_process(beta: float, shape: tuple[int, ...], seed: int) -> ColoredNoiseProcess:
+    """Unit-variance noise of spectrum ``1 / f ** beta``, one sequence per entry of ``shape``
+    (envs by action dimensions); ``sample()`` gives the next step's ``shape`` array."""
+    size = (*shape, COLORED_NOISE_STEPS)
+    return ColoredNoiseProcess(beta=beta, size=size, rng=np.random.default_rng(seed))
+
+
 class LayerNormCritic(ContinuousCritic):
     """SB3's twin critics with LayerNorm between each hidden linear layer and its ReLU."""
 
@@ -136,10 +150,7 @@ class StabilizedSACPolicy(SACPolicy):
             raise ValueError(f"action_gain must be a number >= 1, got {action_gain}")
         if isinstance(noise_hold, bool) or not isinstance(noise_hold, int) or noise_hold < 1:
             raise ValueError(f"noise_hold must be a whole number of steps >= 1, got {noise_hold}")
-        if isinstance(noise_color, bool) or not isinstance(noise_color, (int, float)):
-            raise ValueError(f"noise_color must be a number in [0, 2], got {noise_color!r}")
-        if not 0 <= noise_color <= 2:
-            raise ValueError(f"noise_color must be a number in [0, 2], got {noise_color}")
+        noise_color = checked_noise_color(noise_color)
         if noise_color and noise_hold > 1:
             raise ValueError("noise_color and noise_hold: two kinds of exploring noise; pick one")
         if max_grad_norm is not None and not max_grad_norm > 0:
@@ -154,7 +165,7 @@ class StabilizedSACPolicy(SACPolicy):
         self.action_gain = float(action_gain)
         self._held_noise: torch.Tensor | None = None
         self._held_steps = 0
-        self.noise_color = float(noise_color)
+        self.noise_color = noise_color
         self._colored_noise: ColoredNoiseProcess | None = None
         super().__init__(*args, **kwargs)
         if noise_hold > 1 and self.actor_kwargs.get("use_sde"):
@@ -224,11 +235,7 @@ class StabilizedSACPolicy(SACPolicy):
             # Seeded from torch's generator, so the run's seed fixes the noise as it fixes
             # SAC's own draws.
             seed = int(torch.randint(2**62, (1,)).item())
-            process = ColoredNoiseProcess(
-                beta=self.noise_color,
-                size=(*mean.shape, COLORED_NOISE_STEPS),
-                rng=np.random.default_rng(seed),
-            )
+            process = colored_noise_process(self.noise_color, tuple(mean.shape), seed)
             self._colored_noise = process
         return torch.as_tensor(process.sample(), dtype=mean.dtype, device=mean.device)
 
@@ -247,15 +254,30 @@ class StabilizedSACPolicy(SACPolicy):
 
 # Policy names a hyperparameter entry may give besides SB3's own, per algorithm.
 POLICIES: dict[str, dict[str, type]] = {"sac": {POLICY_NAME: StabilizedSACPolicy}}
+# StabilizedSACPolicy's keys that hook into PyTorch and have no SBX counterpart here.
+TORCH_ONLY_KEYS = {"critic_layer_norm", "max_grad_norm", "actor_ema", "noise_hold", "action_gain"}
 
 
-def resolve_policy(algo: str, name: Any, backend: str = "sb3") -> Any:
-    """The class for one of this package's policy names; anything else as given."""
+def resolve_policy(
+    algo: str, name: Any, backend: str = "sb3", policy_kwargs: dict[str, Any] | None = None
+) -> Any:
+    """The class for one of this package's policy names; anything else as given.
+
+    On ``--backend sbx`` the name stands for :mod:`~minitaur_env.training.sbx_policies`'
+    SBX policy, which takes ``noise_color`` and SBX's own keys; the PyTorch-only keys
+    are refused in one line.
+    """
     if not isinstance(name, str) or name not in POLICIES.get(algo, {}):
         return name
-    if backend != "sb3":
+    if backend == "sb3":
+        return POLICIES[algo][name]
+    torch_only = sorted(set(policy_kwargs or {}) & TORCH_ONLY_KEYS)
+    if torch_only:
         raise UsageError(
-            f"policy {name} is a PyTorch policy for --backend sb3; SBX's SAC has its own "
-            "LayerNorm critics: policy=MlpPolicy 'policy_kwargs={layer_norm: true}'"
+            f"policy {name} on --backend {backend} takes noise_color, not {', '.join(torch_only)} "
+            "(PyTorch only); SBX's SAC has its own LayerNorm critics and held noise: "
+            "'policy_kwargs={layer_norm: true}', use_sde=true"
         )
-    return POLICIES[algo][name]
+    from minitaur_env.training.sbx_policies import ColoredNoiseSACPolicy
+
+    return ColoredNoiseSACPolicy

@@ -421,12 +421,14 @@ def safe_custom_objects(
     """
     from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
 
+    from minitaur_env.training.algorithms import saved_backend
+
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data"))
     except (zipfile.BadZipFile, KeyError, ValueError, OSError) as error:
         raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
-    if str(data.get("policy_class", {}).get("__module__", "")).startswith("sbx."):
+    if saved_backend(str(data.get("policy_class", {}).get("__module__", ""))) == "sbx":
         raise UntrustedPickle(path, "an SBX model (its flax parameters are pickled)")
     replaced: dict[str, Any] = {}
     for key, entry in data.items():
