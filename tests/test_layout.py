@@ -15,7 +15,18 @@ PACKAGE = Path(__file__).resolve().parents[1] / "minitaur_env" / "training"
 # Lowest first. A module may import modules of lower layers only: a new module must be
 # placed here, and an import that climbs fails the test.
 LAYERS = [
-    {"files", "policies", "progress", "runtime", "single_env", "vec_env", "export", "seeds"},
+    {"noise"},
+    {
+        "files",
+        "policies",
+        "sbx_policies",
+        "progress",
+        "runtime",
+        "single_env",
+        "vec_env",
+        "export",
+        "seeds",
+    },
     {
         "run_folder",
         "video",

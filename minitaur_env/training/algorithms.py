@@ -55,6 +55,33 @@ def algorithm_class(name: str, backend: str = "sb3") -> type[BaseAlgorithm]:
     return cls
 
 
+def resolve_policy(
+    algo: str, name: Any, backend: str = "sb3", policy_kwargs: dict[str, Any] | None = None
+) -> Any:
+    """The class for one of this package's policy names; anything else as given.
+
+    On ``--backend sbx`` the name stands for :mod:`~minitaur_env.training.sbx_policies`'
+    SBX policy, which takes ``noise_color`` and SBX's own keys; the PyTorch-only keys
+    are refused in one line.
+    """
+    from minitaur_env.training.policies import POLICIES, TORCH_ONLY_KEYS  # imports torch
+
+    if not isinstance(name, str) or name not in POLICIES.get(algo, {}):
+        return name
+    if backend == "sb3":
+        return POLICIES[algo][name]
+    torch_only = sorted(set(policy_kwargs or {}) & TORCH_ONLY_KEYS)
+    if torch_only:
+        raise UsageError(
+            f"policy {name} on --backend {backend} takes noise_color, not {', '.join(torch_only)} "
+            "(PyTorch only); SBX's SAC has its own LayerNorm critics and held noise: "
+            "'policy_kwargs={layer_norm: true}', use_sde=true"
+        )
+    from minitaur_env.training.sbx_policies import ColoredNoiseSACPolicy  # imports JAX
+
+    return ColoredNoiseSACPolicy
+
+
 def load_model(cls: type[BaseAlgorithm], path: Path, **kwargs: Any) -> BaseAlgorithm:
     """``cls.load``, without SB3's false alarm about n-step returns on reload.
 

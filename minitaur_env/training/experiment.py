@@ -29,7 +29,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from minitaur_env.training import TrainingDiverged, UsageError
-from minitaur_env.training.algorithms import algorithm_class
+from minitaur_env.training.algorithms import algorithm_class, resolve_policy
 from minitaur_env.training.checkpoints import (
     load_newest_checkpoint,
     load_trained_agent,
@@ -43,7 +43,6 @@ from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_eval_env, make_training_env
 from minitaur_env.training.files import ensure_writable, exclusive
 from minitaur_env.training.hyperparams import algorithm_kwargs
-from minitaur_env.training.policies import resolve_policy
 from minitaur_env.training.results import RunResult
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.runtime import (

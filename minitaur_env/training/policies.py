@@ -38,7 +38,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numpy as np
 import torch
 from pink import ColoredNoiseProcess
 from stable_baselines3.common.policies import ContinuousCritic
@@ -46,26 +45,9 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.sac.policies import Actor, SACPolicy
 from torch import nn
 
-from minitaur_env.training import UsageError
+from minitaur_env.training.noise import checked_noise_color, colored_noise_process
 
 POLICY_NAME = "StabilizedMlpPolicy"
-# Steps per colored-noise sequence: the classic 1000-step time limit, as Eberhard et al.
-# set it to the episode length (a longer one adds periods no episode can use).
-COLORED_NOISE_STEPS = 1000
-
-
-def checked_noise_color(value: Any) -> float:
-    """``noise_color`` as a float, or a one-line ValueError."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 2:
-        raise ValueError(f"noise_color must be a number in [0, 2], got {value!r}")
-    return float(value)
-
-
-def colored_noise_process(beta: float, shape: tuple[int, ...], seed: int) -> ColoredNoiseProcess:
-    """Unit-variance noise of spectrum ``1 / f ** beta``, one sequence per entry of ``shape``
-    (envs by action dimensions); ``sample()`` gives the next step's ``shape`` array."""
-    size = (*shape, COLORED_NOISE_STEPS)
-    return ColoredNoiseProcess(beta=beta, size=size, rng=np.random.default_rng(seed))
 
 
 class LayerNormCritic(ContinuousCritic):
@@ -256,28 +238,3 @@ class StabilizedSACPolicy(SACPolicy):
 POLICIES: dict[str, dict[str, type]] = {"sac": {POLICY_NAME: StabilizedSACPolicy}}
 # StabilizedSACPolicy's keys that hook into PyTorch and have no SBX counterpart here.
 TORCH_ONLY_KEYS = {"critic_layer_norm", "max_grad_norm", "actor_ema", "noise_hold", "action_gain"}
-
-
-def resolve_policy(
-    algo: str, name: Any, backend: str = "sb3", policy_kwargs: dict[str, Any] | None = None
-) -> Any:
-    """The class for one of this package's policy names; anything else as given.
-
-    On ``--backend sbx`` the name stands for :mod:`~minitaur_env.training.sbx_policies`'
-    SBX policy, which takes ``noise_color`` and SBX's own keys; the PyTorch-only keys
-    are refused in one line.
-    """
-    if not isinstance(name, str) or name not in POLICIES.get(algo, {}):
-        return name
-    if backend == "sb3":
-        return POLICIES[algo][name]
-    torch_only = sorted(set(policy_kwargs or {}) & TORCH_ONLY_KEYS)
-    if torch_only:
-        raise UsageError(
-            f"policy {name} on --backend {backend} takes noise_color, not {', '.join(torch_only)} "
-            "(PyTorch only); SBX's SAC has its own LayerNorm critics and held noise: "
-            "'policy_kwargs={layer_norm: true}', use_sde=true"
-        )
-    from minitaur_env.training.sbx_policies import ColoredNoiseSACPolicy
-
-    return ColoredNoiseSACPolicy

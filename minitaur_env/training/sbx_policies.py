@@ -16,7 +16,7 @@ import jax
 import numpy as np
 from sbx.sac.policies import SACPolicy
 
-from minitaur_env.training.policies import checked_noise_color, colored_noise_process
+from minitaur_env.training.noise import checked_noise_color, colored_noise_process
 
 
 @jax.jit
