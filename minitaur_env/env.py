@@ -37,6 +37,7 @@ from minitaur_env.sensors import (
     quaternion_to_euler,
 )
 from minitaur_env.settings import (
+    DRAW_ORDER,
     Camera,
     EpisodeRealism,
     Realism,
@@ -385,6 +386,25 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         curriculum's lever. The same random numbers are drawn at every scale."""
         self._push_scale = number("push scale", scale, 0, 1)
 
+    def narrow_realism(self, fields: dict[str, Any]) -> None:
+        """Draw the given realism fields from these ranges from the next reset on, each
+        inside the env's own: a curriculum's lever, training envs that meet the hard end
+        of the randomization more often. Anything else is refused in one line."""
+        if not isinstance(fields, dict) or not fields or not set(fields) <= set(DRAW_ORDER):
+            drawn = ", ".join(DRAW_ORDER)
+            raise ValueError(
+                f"narrow_realism takes a mapping of drawn realism fields ({drawn}), got {fields!r}"
+            )
+        narrowed = Realism.coerce(fields, self.realism)
+        for name in fields:
+            own, new = getattr(self.realism, name), getattr(narrowed, name)
+            if not _inside(new, own):
+                raise ValueError(
+                    f"narrow_realism: {name} {_span(new)} is not inside the env's own {_span(own)}"
+                )
+        self.realism = narrowed
+        self._check_time_steps()  # a fixed control step must be whole physics steps
+
     def _live_sim(self) -> BulletSim:
         if self._sim is None:
             raise RuntimeError("the env is closed; make a new one")
@@ -624,6 +644,21 @@ MOVED_RANGES = {
     "imu_noise_stdev": "imu_noise_stdev",
     "imu_bias": "imu_bias",
 }
+
+
+def _span(value: Any) -> tuple[float, float]:
+    """The lowest and highest value a realism field can take."""
+    if isinstance(value, Uniform):
+        return (value.low, value.high)
+    return (float(np.min(value)), float(np.max(value)))
+
+
+def _inside(new: Any, own: Any) -> bool:
+    """Whether every value of ``new`` is one ``own`` can take."""
+    if not isinstance(own, Uniform):
+        return not isinstance(new, Uniform) and bool(np.allclose(new, own))
+    low, high = _span(new)
+    return own.low <= low and high <= own.high
 
 
 def _as_mapping(realism: Realism | dict[str, Any] | str) -> dict[str, Any]:

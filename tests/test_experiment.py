@@ -13,6 +13,7 @@ import yaml
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
+from minitaur_env.settings import Uniform
 from minitaur_env.training import (
     Experiment,
     ExperimentConfig,
@@ -544,6 +545,79 @@ def test_a_push_curriculum_grows_the_training_pushes_only_and_continues_after_a_
     resumed_at = min(second.scales)
     assert resumed_at > 50  # from the 50-step checkpoint, not from step 0 and scale 0.2
     assert second.scales[resumed_at] == pytest.approx(expected[resumed_at], abs=0.02)
+
+
+class RecordsControlSteps(BaseCallback):
+    """Each training env's control step at every env step, and a Ctrl-C at ``interrupt_at``."""
+
+    def __init__(self, interrupt_at: int | None = None) -> None:
+        super().__init__()
+        self.interrupt_at = interrupt_at
+        self.steps: list[list[float]] = []
+
+    def _on_step(self) -> bool:
+        self.steps.append([float(dt) for dt in self.training_env.get_attr("dt")])
+        if self.num_timesteps == self.interrupt_at:
+            raise KeyboardInterrupt
+        return True
+
+
+def test_hard_draws_narrow_the_first_training_envs_only_and_again_after_a_resume(tmp_path):
+    def trained(name: str, callback: BaseCallback, hard: bool = True) -> Experiment:
+        draws = {"envs": 1, "realism": {"control_time_step": [0.016, 0.02]}}
+        return pendulum(
+            tmp_path / name,
+            env="MinitaurBulletRandomized-v0",
+            n_envs=2,
+            n_timesteps=240,
+            env_kwargs={"max_episode_steps": 10},  # many resets: many draws
+            hyperparams={"hard_draws": draws} if hard else {},
+            callbacks=[callback],
+        )
+
+    seen = RecordsControlSteps()
+    experiment = trained("hard", seen)
+    experiment.run()
+    narrowed = [steps[0] for steps in seen.steps[20:]]  # past the first (unnarrowed) episode
+    own = [steps[1] for steps in seen.steps]
+    assert min(narrowed) >= 0.016 - 1e-9
+    assert min(own) < 0.016  # the second training env keeps the preset's 3-20 ms
+    eval_realism = experiment.eval_env.get_attr("realism")[0]
+    assert eval_realism.control_time_step == Uniform(0.003, 0.02)  # evaluations: the env's own
+    control = RecordsControlSteps()
+    trained("control", control, hard=False).run()
+    assert (
+        min(steps[0] for steps in control.steps) < 0.016
+    )  # without the key, env 0 is not narrowed
+
+    first = RecordsControlSteps(interrupt_at=120)
+    interrupted = trained("cut", first).run()
+    assert interrupted.status == "interrupted"
+    second = RecordsControlSteps()
+    Experiment.resume(interrupted.run.path, verbose=0, callbacks=[second]).run()
+    assert min(steps[0] for steps in second.steps[20:]) >= 0.016 - 1e-9
+
+
+@pytest.mark.parametrize(
+    ("draws", "message"),
+    [
+        ({"envs": 1}, "hard_draws: expected {envs: <how many training envs>"),
+        (
+            {"envs": 2, "realism": {"control_latency": [0.02, 0.04]}},
+            "envs must be a whole number in 1..1",
+        ),
+        (
+            {"envs": 1, "realism": {"control_latency": [0.02, 0.06]}},
+            "is not inside the env's own (0.0, 0.04)",
+        ),
+        ({"envs": 1, "realism": {"pushes": True}}, "takes a mapping of drawn realism fields"),
+    ],
+)
+def test_hard_draws_that_cannot_be_drawn_are_one_line(draws, message):
+    with pytest.raises(UsageError, match=re.escape(message)):
+        ExperimentConfig.resolve(
+            "ppo", "MinitaurBulletRandomized-v0", n_envs=2, hyperparams={"hard_draws": draws}
+        )
 
 
 @pytest.mark.parametrize(

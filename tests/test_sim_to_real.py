@@ -241,6 +241,43 @@ def test_a_push_scale_scales_the_same_draws_and_a_bad_one_is_refused():
     env.close()
 
 
+def test_narrowed_realism_draws_inside_the_new_ranges_and_a_range_outside_is_refused():
+    def draws(narrow: dict | None) -> list[tuple[float, float]]:
+        env = MinitaurBulletEnv(preset="tan2018")
+        if narrow is not None:
+            env.narrow_realism(narrow)
+        drawn = []
+        for seed in range(12):
+            realism = env.reset(seed=seed)[1]["realism"]
+            drawn.append((realism.control_time_step, realism.control_latency))
+        env.close()
+        return drawn
+
+    hard = {"control_time_step": [0.012, 0.02], "control_latency": [0.02, 0.04]}
+    narrowed, own = draws(hard), draws(None)
+    assert all(0.012 - 1e-9 <= step <= 0.02 and 0.02 <= late <= 0.04 for step, late in narrowed)
+    # The control: the preset's own ranges draw below both lower ends.
+    assert any(step < 0.012 for step, _ in own) and any(late < 0.02 for _, late in own)
+    env = MinitaurBulletEnv(preset="tan2018")
+    before = env.realism
+    for bad, message in (
+        (
+            {"control_latency": [0.0, 0.06]},
+            r"control_latency \(0.0, 0.06\) is not inside the env's own \(0.0, 0.04\)",
+        ),
+        ({"pushes": True}, "takes a mapping of drawn realism fields"),
+        ({}, "takes a mapping of drawn realism fields"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            env.narrow_realism(bad)
+    assert env.realism == before  # a refusal changes nothing
+    classic = MinitaurBulletEnv()
+    with pytest.raises(ValueError, match=r"control_time_step \(0.012, 0.02\) is not inside"):
+        classic.narrow_realism({"control_time_step": [0.012, 0.02]})  # the classic 10 ms is fixed
+    env.close()
+    classic.close()
+
+
 # -- IMU --------------------------------------------------------------------------------
 def test_euler_conversions_match_pybullet():
     rng = np.random.default_rng(0)

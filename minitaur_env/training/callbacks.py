@@ -19,7 +19,7 @@ from minitaur_env.training import TrainingDiverged
 from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_env
-from minitaur_env.training.hyperparams import entropy_decay, push_curriculum
+from minitaur_env.training.hyperparams import entropy_decay, hard_draws, push_curriculum
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import (
     embed_evaluation,
@@ -112,6 +112,22 @@ class PushCurriculum(_StepSchedule):
         self.logger.record("train/push_scale", self.applied)
 
 
+class HardDraws(BaseCallback):
+    """The first ``envs`` training envs draw ``realism``'s fields from its narrower ranges
+    (``MinitaurBulletEnv.narrow_realism``), set when training starts or resumes; the other
+    training envs and the evaluations keep the env's own."""
+
+    def __init__(self, envs: int, realism: dict[str, Any]) -> None:
+        super().__init__()
+        self.envs, self.realism = envs, realism
+
+    def _on_training_start(self) -> None:
+        self.training_env.env_method("narrow_realism", self.realism, indices=range(self.envs))
+
+    def _on_step(self) -> bool:
+        return True
+
+
 def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     """The callbacks that change a setting as training goes, from the config's entry."""
     callbacks: list[BaseCallback] = []
@@ -124,6 +140,9 @@ def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     if curriculum is not None:
         start, full_at = curriculum
         callbacks.append(PushCurriculum(start, int(full_at * steps)))
+    draws = hard_draws(config.hyperparams, config.n_envs)
+    if draws is not None:
+        callbacks.append(HardDraws(*draws))
     return callbacks
 
 

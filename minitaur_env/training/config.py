@@ -11,14 +11,16 @@ import gymnasium as gym
 from minitaur_env.training import VEC_ENVS, UsageError
 from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, infer_algo
 from minitaur_env.training.hyperparams import (
+    HARD_DRAWS_KEY,
     RUN_KEYS,
     algorithm_kwargs,
     entropy_decay,
+    hard_draws,
     load_hyperparams,
     mirrored,
     push_curriculum,
 )
-from minitaur_env.training.single_env import qualified_env_id
+from minitaur_env.training.single_env import make_env, qualified_env_id
 
 
 @dataclasses.dataclass
@@ -142,8 +144,21 @@ class ExperimentConfig:
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)
+        draws = hard_draws(self.hyperparams, self.n_envs)
+        if draws is not None:
+            self._check_hard_draws(draws[1])
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
+
+    def _check_hard_draws(self, realism: dict[str, Any]) -> None:
+        """The env refuses ranges outside its own; ask one env now, not every worker later."""
+        env = make_env(self.env, self.env_kwargs)
+        try:
+            env.unwrapped.narrow_realism(realism)
+        except (AttributeError, ValueError) as error:
+            raise UsageError(f"{HARD_DRAWS_KEY}: {error}") from error
+        finally:
+            env.close()
 
     def _check_trained_agent(self, path: Path) -> None:
         if not path.is_file():

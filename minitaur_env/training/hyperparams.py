@@ -28,7 +28,13 @@ ENTROPY_ALGOS = ("sac", "tqc", "crossq")  # the algorithms that tune an entropy 
 # force at step 0, growing linearly to the full force at ``full_at`` (a fraction of
 # n_timesteps). Evaluations always push at full force.
 PUSH_CURRICULUM_KEY = "push_curriculum"
-CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY)  # read by callbacks, not the algorithm
+# ``{envs: 2, realism: {control_time_step: [0.012, 0.02]}}``: the first ``envs`` training
+# envs draw those realism fields from these ranges, inside the env's own (the hard end of
+# the randomization, met more often); the other training envs and every evaluation keep
+# the env's own ranges.
+HARD_DRAWS_KEY = "hard_draws"
+# Read by callbacks, not the algorithm.
+CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY, HARD_DRAWS_KEY)
 # ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
 # happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
 MIRROR_KEY = "mirror"
@@ -182,6 +188,26 @@ def push_curriculum(hyperparams: dict[str, Any], env_pushes: Any) -> tuple[float
             f"{prefix}: the env has no pushes to scale; add --env-kwargs 'realism={{pushes: true}}'"
         )
     return float(start), float(full_at)
+
+
+def hard_draws(hyperparams: dict[str, Any], n_envs: int) -> tuple[int, dict[str, Any]] | None:
+    """``(envs, realism fields)`` of a ``hard_draws`` entry, or None without one. Whether
+    the ranges lie inside the env's own is the env's check (``narrow_realism``)."""
+    entry = hyperparams.get(HARD_DRAWS_KEY)
+    if entry is None:
+        return None
+    expected = "{envs: <how many training envs>, realism: {<field>: [low, high], ...}}"
+    if not isinstance(entry, dict) or set(entry) != {"envs", "realism"}:
+        raise UsageError(f"{HARD_DRAWS_KEY}: expected {expected}, got {entry!r}")
+    envs, realism = entry["envs"], entry["realism"]
+    if isinstance(envs, bool) or not isinstance(envs, int) or not 1 <= envs < n_envs:
+        raise UsageError(
+            f"{HARD_DRAWS_KEY}.envs must be a whole number in 1..{n_envs - 1} (n_envs is "
+            f"{n_envs}: some training envs keep the env's own ranges), got {envs!r}"
+        )
+    if not isinstance(realism, dict) or not realism:
+        raise UsageError(f"{HARD_DRAWS_KEY}.realism: expected a mapping of fields, got {realism!r}")
+    return envs, realism
 
 
 def mirrored(hyperparams: dict[str, Any]) -> bool:
