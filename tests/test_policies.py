@@ -283,23 +283,30 @@ def test_action_gain_multiplies_and_clips_the_action_and_counts_the_gain_in_its_
             sac(action_gain=bad)
 
 
+def tiny_run(policy_kwargs: dict, backend: str = "sb3", **hyperparams) -> ExperimentConfig:
+    """A 60-step Pendulum run of the policy, checkpointed at 30."""
+    return ExperimentConfig.resolve(
+        "sac",
+        "Pendulum-v1",
+        n_timesteps=60,
+        eval_freq=0,
+        save_freq=30,
+        vec_env="dummy",
+        device="cpu",
+        backend=backend,
+        hyperparams={
+            **SMALL,
+            "policy": POLICY_NAME,
+            "policy_kwargs": {"net_arch": [8], **policy_kwargs},
+            **hyperparams,
+        },
+    )
+
+
 def test_the_policy_and_its_held_noise_train_resume_export_and_bad_values_are_one_line(tmp_path):
     def config(**policy_kwargs):
-        return ExperimentConfig.resolve(
-            "sac",
-            "Pendulum-v1",
-            n_timesteps=60,
-            eval_freq=0,
-            save_freq=30,
-            vec_env="dummy",
-            device="cpu",
-            hyperparams={
-                **SMALL,
-                "policy": POLICY_NAME,
-                "policy_kwargs": {"net_arch": [8], **policy_kwargs},
-                "target_entropy": "auto",  # as the held-noise entry: its resume once failed
-            },
-        )
+        # target_entropy auto, as the held-noise entry: its resume once failed
+        return tiny_run(policy_kwargs, target_entropy="auto")
 
     settings = {"critic_layer_norm": True, "noise_hold": 8, "action_gain": 2}
     run = Experiment.create(config(**settings), tmp_path, verbose=0)
@@ -319,20 +326,7 @@ def test_the_policy_and_its_held_noise_train_resume_export_and_bad_values_are_on
 
 def test_the_torch_only_keys_on_sbx_are_one_line_not_a_traceback(tmp_path):
     needs("sbx")
-    config = ExperimentConfig.resolve(
-        "sac",
-        "Pendulum-v1",
-        n_timesteps=60,
-        eval_freq=0,
-        save_freq=0,
-        vec_env="dummy",
-        backend="sbx",
-        hyperparams={
-            **SMALL,
-            "policy": POLICY_NAME,
-            "policy_kwargs": {"noise_color": 1.0, "critic_layer_norm": True},
-        },
-    )
+    config = tiny_run({"noise_color": 1.0, "critic_layer_norm": True}, "sbx")
     with pytest.raises(UsageError, match="takes noise_color, not critic_layer_norm"):
         Experiment.create(config, tmp_path, verbose=0).run()
     assert not any(tmp_path.rglob("config.yml"))  # the run that never started is gone
@@ -369,24 +363,7 @@ def test_colored_noise_on_sbx_explores_as_on_torch_trains_saves_and_resumes(tmp_
         policy(0.0).predict(obs, deterministic=True)[0],
     )
 
-    def config(**changes):
-        return ExperimentConfig.resolve(
-            "sac",
-            "Pendulum-v1",
-            n_timesteps=60,
-            eval_freq=0,
-            save_freq=30,
-            vec_env="dummy",
-            backend="sbx",
-            hyperparams={
-                **SMALL,
-                "policy": POLICY_NAME,
-                "policy_kwargs": {"net_arch": [8], "noise_color": 1.0},
-            },
-            **changes,
-        )
-
-    result = Experiment.create(config(), tmp_path, verbose=0).run()
+    result = Experiment.create(tiny_run({"noise_color": 1.0}, "sbx"), tmp_path, verbose=0).run()
     assert result.status == "completed"
     assert infer_algo(result.run.final_model) == ("sac", "sbx")
     resumed = Experiment.resume(result.run.path, n_timesteps=90, trust_pickle=True, verbose=0)
