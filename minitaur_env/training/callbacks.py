@@ -115,7 +115,9 @@ class PushCurriculum(_StepSchedule):
 class HardDraws(BaseCallback):
     """The first ``envs`` training envs draw ``realism``'s fields from its narrower ranges
     (``MinitaurBulletEnv.narrow_realism``), set when training starts or resumes; the other
-    training envs and the evaluations keep the env's own."""
+    training envs and the evaluations keep the env's own. SB3 resets the envs before the
+    first callback, so each narrowed env's first episode after a start or resume is still
+    drawn from the env's own ranges."""
 
     def __init__(self, envs: int, realism: dict[str, Any]) -> None:
         super().__init__()
