@@ -241,7 +241,7 @@ def sweep_parser(prog: str = "minitaur sweep") -> argparse.ArgumentParser:
     add("-f", "--storage", default="sweeps", help="storage folder, shared on a cluster")
     add("--name", default=None, help="sweep name (default: <algo>-<env>)")
     add("--resume", action="store_true", help="continue the interrupted sweep -f/--name")
-    add_trust_pickle(parser, "when a trial resumes its run: SBX checkpoints, older runs' files")
+    add_trust_pickle(parser, "when a trial resumes its run: older runs' pickled files")
     add("--address", help="an existing Ray cluster (default: $RAY_ADDRESS, else local)")
     add(
         "--summarize",
@@ -312,7 +312,7 @@ def ship_parser(prog: str = "minitaur ship") -> argparse.ArgumentParser:
     add("--json", type=Path, help="write the whole report here")
     add("--ship", type=Path, help="write the chosen model here (a zoo run folder)")
     add("--replace", action="store_true", help="let --ship replace a folder already there")
-    add_trust_pickle(parser, "(SBX models, statistics without their JSON)")
+    add_trust_pickle(parser, "(SBX zips saved without their JAX state, statistics without JSON)")
     return parser
 
 

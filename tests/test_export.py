@@ -107,8 +107,7 @@ def test_shipping_an_sbx_run_writes_an_sb3_model_that_acts_like_the_chosen_one(t
         "report.json",
         "--ship",
         str(shipped),
-        "--trust-pickle",
-        cwd=tmp_path,  # an SBX model is a pickle; this test trained it
+        cwd=tmp_path,  # no --trust-pickle: the SBX zips load from their msgpack state
     )
     assert selected.returncode == 0, selected.stderr
     chosen = Path(json.loads((tmp_path / "report.json").read_text())["chosen"]["model"])

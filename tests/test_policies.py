@@ -337,7 +337,7 @@ def test_colored_noise_on_sbx_explores_as_on_torch_trains_saves_and_resumes(tmp_
     from sbx import SAC as SbxSAC
 
     from minitaur_env.training.algorithms import infer_algo
-    from minitaur_env.training.safe_load import UntrustedPickle, load_sb3_model
+    from minitaur_env.training.safe_load import load_sb3_model
     from minitaur_env.training.sbx_policies import ColoredNoiseSACPolicy
 
     def policy(color: float, seed: int = 0) -> SbxSAC:
@@ -366,9 +366,12 @@ def test_colored_noise_on_sbx_explores_as_on_torch_trains_saves_and_resumes(tmp_
     result = Experiment.create(tiny_run({"noise_color": 1.0}, "sbx"), tmp_path, verbose=0).run()
     assert result.status == "completed"
     assert infer_algo(result.run.final_model) == ("sac", "sbx")
-    resumed = Experiment.resume(result.run.path, n_timesteps=90, trust_pickle=True, verbose=0)
+    resumed = Experiment.resume(result.run.path, n_timesteps=90, verbose=0)  # no pickle
     assert resumed.run().status == "completed" and resumed.resumed_at == 60
     loaded = SbxSAC.load(result.run.final_model)
     assert isinstance(loaded.policy, ColoredNoiseSACPolicy) and loaded.policy.noise_color == 1.0
-    with pytest.raises(UntrustedPickle):  # flax parameters are pickled: only with opt-in
-        load_sb3_model(SbxSAC, result.run.final_model)
+    safe = load_sb3_model(SbxSAC, result.run.final_model)  # from readable entries and msgpack
+    assert isinstance(safe.policy, ColoredNoiseSACPolicy) and safe.policy.noise_color == 1.0
+    np.testing.assert_array_equal(
+        safe.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0]
+    )

@@ -428,3 +428,83 @@ def test_statistics_of_another_observation_shape_are_refused_at_load_and_resume(
         f"train.py: error: {statistics}: its VecNormalize statistics for obs_rms have shape "
         "(27,), the env's are (28,)"
     ], resumed.stderr
+
+
+def test_an_sbx_zip_loads_from_its_msgpack_state_with_nothing_unpickled(tmp_path):
+    sbx = needs("sbx")
+    import gymnasium as gym
+    import jax
+
+    from minitaur_env.training.checkpoints import save_model
+    from minitaur_env.training.run_folder import EMBEDDED_JAX_STATE
+    from minitaur_env.training.safe_load import _jax_state, load_sb3_model
+
+    def trained(net_arch: list[int], path: Path):
+        model = sbx.SAC(
+            "MlpPolicy",
+            gym.make("Pendulum-v1"),
+            learning_starts=20,
+            seed=3,
+            policy_kwargs={"net_arch": net_arch},
+        )
+        model.learn(60)  # 40 updates: weights, optimizer moments and targets all moved
+        save_model(model, path)
+        return model
+
+    model = tmp_path / "sac.zip"
+    original = trained([16], model)
+    marker = tmp_path / "ran-sbx"
+    for key in ("policy", "ent_coef_state"):  # what SBX pickles its networks' state in
+        trap_zip(model, marker, key=key)
+    loaded = load_sb3_model(sbx.SAC, model)
+    assert not marker.exists()
+    saved, restored = _jax_state(original), _jax_state(loaded)
+    assert set(saved) == set(restored) >= {"policy.actor_state", "policy.qf_state", "model.key"}
+    for name in saved:  # values, targets, optimizer state and keys, leaf for leaf
+        for mine, theirs in zip(
+            jax.tree_util.tree_leaves(saved[name]),
+            jax.tree_util.tree_leaves(restored[name]),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(np.asarray(mine), np.asarray(theirs))
+    obs = np.random.default_rng(0).normal(size=(8, 3)).astype(np.float32)
+    np.testing.assert_array_equal(
+        loaded.predict(obs, deterministic=True)[0], original.predict(obs, deterministic=True)[0]
+    )
+    fresh = sbx.SAC("MlpPolicy", gym.make("Pendulum-v1"), seed=3, policy_kwargs={"net_arch": [16]})
+    assert not np.allclose(  # control: the restored weights are not what a build gives
+        fresh.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0]
+    )
+
+    # Another network's state: refused in one line, not loaded half-way.
+    other = tmp_path / "wider.zip"
+    trained([32], other)
+    with zipfile.ZipFile(other) as archive:
+        wider_state = archive.read(EMBEDDED_JAX_STATE)
+    members = {}
+    with zipfile.ZipFile(model) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    members[EMBEDDED_JAX_STATE] = wider_state
+    with zipfile.ZipFile(model, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+    with pytest.raises(UsageError, match="has arrays of other shapes than the model's"):
+        load_sb3_model(sbx.SAC, model)
+    # A state left out would leave a freshly built critic in its place: refused too.
+    from flax import serialization
+
+    partial = serialization.msgpack_restore(members.pop(EMBEDDED_JAX_STATE))
+    del partial["policy.qf_state"]
+    with zipfile.ZipFile(model, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+        archive.writestr(EMBEDDED_JAX_STATE, serialization.msgpack_serialize(partial))
+    with pytest.raises(UsageError, match=r"its JAX state holds .* a SAC here"):
+        load_sb3_model(sbx.SAC, model)
+    # Without the member (SBX's own save) the flax state is only a pickle: the flag decides.
+    with zipfile.ZipFile(model, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+    with pytest.raises(UntrustedPickle, match="an SBX model saved without its JAX state"):
+        load_sb3_model(sbx.SAC, model)
+    assert not marker.exists()

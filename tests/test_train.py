@@ -177,15 +177,8 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
     assert action.shape == (8,)
     (run / "checkpoints" / "rl_model_200_steps.zip").unlink()  # as if killed before it
-    # SBX pickles its flax parameters: resuming its checkpoint is the user's choice.
-    refused = run_main(train.main, "--resume", str(run), "-n", "250", cwd=tmp_path)
-    assert refused.returncode == 2 and error_lines(refused)[-1].endswith(
-        "would unpickle it, and a pickle can run code from the file; pass --trust-pickle "
-        "if you trust where it came from"
-    ), refused.stderr
-    resumed = run_script(
-        "train.py", "--resume", str(run), "-n", "250", "--trust-pickle", cwd=tmp_path
-    )
+    # No flag: the checkpoint's flax state is read from its msgpack member, not unpickled.
+    resumed = run_script("train.py", "--resume", str(run), "-n", "250", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
     assert "for 100 steps (from 150)" in resumed.stdout
     final = load_model(sbx.SAC, run / "MinitaurBulletEnv-v0.zip")
@@ -195,13 +188,20 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     )
     assert final.replay_buffer.size() == 149 + 99  # the 150-step buffer was resumed
     model = str(run / "MinitaurBulletEnv-v0.zip")
+    evaluated = run_script("evaluate.py", "--model", model, "--episodes", "1", cwd=tmp_path)
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert "(sac, sbx, observations normalized)" in evaluated.stdout
+    # Control: as SBX itself saves it (no msgpack member), its flax state is only a pickle.
+    final.save(model)
     refused = run_main(evaluate.main, "--model", model, "--episodes", "1", cwd=tmp_path)
-    assert refused.returncode == 2 and "--trust-pickle" in refused.stderr  # flax is pickled
+    assert refused.returncode == 2 and error_lines(refused)[-1].endswith(
+        "an SBX model saved without its JAX state would unpickle it, and a pickle can run "
+        "code from the file; pass --trust-pickle if you trust where it came from"
+    ), refused.stderr
     evaluated = run_script(
         "evaluate.py", "--model", model, "--episodes", "1", "--trust-pickle", cwd=tmp_path
     )
     assert evaluated.returncode == 0, evaluated.stderr
-    assert "(sac, sbx, observations normalized)" in evaluated.stdout
 
 
 def test_video_recording_does_not_change_training_nor_stop_it_on_a_write_error(tmp_path):

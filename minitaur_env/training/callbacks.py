@@ -23,6 +23,7 @@ from minitaur_env.training.hyperparams import entropy_decay, hard_draws, push_cu
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import (
     embed_evaluation,
+    embed_jax_state,
     embed_statistics,
     embedded_evaluation,
     save_normalizer,
@@ -266,6 +267,7 @@ class PromoteBestModel(BaseCallback):
         normalizer = self.model.get_vec_normalize_env()
         if normalizer is not None:
             embed_statistics(staged, normalizer)
+        embed_jax_state(staged, self.model)
         evaluation = self.parent  # EvalCallback sets best_mean_reward before calling us
         embed_evaluation(staged, evaluation.num_timesteps, evaluation.best_mean_reward)
         os.replace(staged, self.run.best_model)

@@ -31,6 +31,7 @@ from minitaur_env.training.safe_load import (
     TRUST_FLAG,
     UntrustedPickle,
     adapting_normalizer,
+    embed_jax_state,
     embed_statistics,
     embedded_statistics,
     load_sb3_model,
@@ -56,12 +57,14 @@ def weights_finite(model: BaseAlgorithm) -> bool:
 
 def save_model(model: BaseAlgorithm, path: Path) -> None:
     """The model zip, replaced atomically, with its VecNormalize statistics inside: a model
-    and the statistics it acts with can never be out of step, wherever the zip goes."""
+    and the statistics it acts with can never be out of step, wherever the zip goes. An SBX
+    model's zip also carries its JAX state as plain arrays, to load without pickles."""
     normalizer = unwrap_vec_normalize(model.get_env()) if model.get_env() is not None else None
     with atomic_path(path) as temp:
         model.save(temp)
         if normalizer is not None:
             embed_statistics(temp, normalizer)
+        embed_jax_state(temp, model)
 
 
 def save_checked_checkpoint(model: BaseAlgorithm, run: RunFolder) -> Path:

@@ -31,6 +31,9 @@ EMBEDDED_STATISTICS = "minitaur_env_vecnormalize.json"
 # A member of best_model.zip: the evaluation that made it the best (steps, mean return).
 # It travels in the zip so that the model and its score are replaced as one file.
 EMBEDDED_EVALUATION = "minitaur_env_evaluation.json"
+# A member of SBX model zips: the flax train states and PRNG keys as msgpack (plain
+# arrays), which SBX itself only pickles; the safe loader restores them from here.
+EMBEDDED_JAX_STATE = "minitaur_env_jax_state.msgpack"
 HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's push_to_hub)
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")

@@ -12,13 +12,16 @@ from the Hub could therefore run anything when it is evaluated. By default:
 - normalization statistics are read from their pickle-free JSON sibling
   (``vecnormalize.json`` beside ``vecnormalize.pkl``), which every run folder, shipped
   folder and Hub folder written here carries;
-- a pickle with no such sibling, an unknown entry or an SBX zip (its flax parameters are
-  pickled) loads only with ``trust_pickle`` (``--trust-pickle``).
+- an SBX zip's flax objects (its networks, train states and PRNG keys, which SBX only
+  pickles) are built anew by the algorithm and their values restored from the msgpack
+  member that every zip saved here carries (plain arrays; ``embed_jax_state``);
+- a pickle with no such sibling, an unknown entry or an SBX zip without that member
+  loads only with ``trust_pickle`` (``--trust-pickle``).
 
 ``--resume`` goes the same way: a checkpoint's zip through the safe loader with the
 run's own hyperparameters, its statistics from their JSON and its replay buffer from
-plain arrays (``replay_buffer.py``); SBX checkpoints and older runs' pickled buffers
-load only with ``--trust-pickle``.
+plain arrays (``replay_buffer.py``); older runs' pickled buffers and SBX checkpoints
+saved before the msgpack member load only with ``--trust-pickle``.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from minitaur_env.training import UsageError
 from minitaur_env.training.files import load_pickle
 from minitaur_env.training.run_folder import (
     EMBEDDED_EVALUATION,
+    EMBEDDED_JAX_STATE,
     EMBEDDED_STATISTICS,
     normalizer_json,
 )
@@ -50,7 +54,13 @@ TRUSTED_MODULES = (
     "sb3_contrib.",
     "minitaur_env.training.policies",
     "minitaur_env.training.replay_buffer",  # MirroredReplayBuffer
+    "sbx.",
+    "minitaur_env.training.sbx_policies",
 )
+# Entries of an SBX zip's data that are flax objects its ``_setup_model`` builds anew (the
+# values come from EMBEDDED_JAX_STATE), and its PRNG key, which that member restores too.
+SBX_REBUILT = ("policy", "actor", "qf", "vf", "ent_coef", "ent_coef_state")
+SBX_KEY = "key"
 _CLASS_NAME = re.compile(r"<function (\w+)\.__init__ at ")
 
 
@@ -158,6 +168,84 @@ def embedded_evaluation(model_zip: Path) -> tuple[int, float] | None:
         return int(record["timesteps"]), float(record["mean_reward"])
     except (zipfile.BadZipFile, OSError, ValueError, KeyError, TypeError) as error:
         raise UsageError(f"{model_zip}: not a readable best model ({error})") from error
+
+
+def embed_jax_state(model_zip: Path, model: Any) -> None:
+    """Add an SBX model's train states and PRNG keys to its zip as msgpack (plain arrays),
+    so that it loads without unpickling what SBX pickles in ``data``. SB3 models: nothing."""
+    states = _jax_state(model)
+    if states:
+        from flax import serialization
+
+        with zipfile.ZipFile(model_zip, "a") as archive:
+            archive.writestr(EMBEDDED_JAX_STATE, serialization.msgpack_serialize(states))
+
+
+def _jax_holders(model: Any) -> dict[str, Any]:
+    return {"model": model, "policy": model.policy}
+
+
+def _jax_state(model: Any) -> dict[str, Any]:
+    """``{"policy.actor_state": state dict, "model.key": array, ...}``: every flax train
+    state and JAX array an SBX model or its policy holds; {} for an SB3 model."""
+    from minitaur_env.training.algorithms import saved_backend
+
+    if saved_backend(type(model.policy).__module__) != "sbx":
+        return {}
+    import jax
+    from flax import serialization
+    from flax.training.train_state import TrainState
+
+    return {
+        f"{owner}.{name}": serialization.to_state_dict(value)
+        for owner, holder in _jax_holders(model).items()
+        for name, value in vars(holder).items()
+        if isinstance(value, (TrainState, jax.Array))
+    }
+
+
+def has_jax_state(model_zip: Path) -> bool:
+    try:
+        with zipfile.ZipFile(model_zip) as archive:
+            return EMBEDDED_JAX_STATE in archive.namelist()
+    except (zipfile.BadZipFile, OSError):
+        return False
+
+
+def restore_jax_state(model: Any, model_zip: Path) -> None:
+    """Put the zip's saved train states and keys into ``model`` (an SBX model freshly built
+    with the zip's spaces and policy_kwargs). Refused in one line where they do not match
+    the fresh model's, entry for entry and shape for shape: a state left out would leave
+    freshly initialized weights in its place, silently."""
+    import jax
+    import jax.numpy as jnp
+    from flax import serialization
+
+    try:
+        with zipfile.ZipFile(model_zip) as archive:
+            saved = serialization.msgpack_restore(archive.read(EMBEDDED_JAX_STATE))
+    except (zipfile.BadZipFile, KeyError, OSError, ValueError) as error:
+        raise UsageError(f"{model_zip}: its JAX state is not readable ({error})") from error
+    fresh = _jax_state(model)
+    if not isinstance(saved, dict) or set(saved) != set(fresh):
+        names = sorted(saved) if isinstance(saved, dict) else saved
+        raise UsageError(
+            f"{model_zip}: its JAX state holds {names}, a {type(model).__name__} here "
+            f"{sorted(fresh)} (saved by another SBX version?)"
+        )
+    holders = _jax_holders(model)
+    for name, state in saved.items():
+        owner, attribute = name.split(".", 1)
+        target = getattr(holders[owner], attribute)
+        try:
+            restored = serialization.from_state_dict(target, state)
+        except (ValueError, KeyError, TypeError) as error:
+            raise UsageError(f"{model_zip}: its {name} does not fit ({error})") from error
+        mine, theirs = jax.tree_util.tree_leaves(target), jax.tree_util.tree_leaves(restored)
+        shapes = [(np.shape(a), np.shape(b)) for a, b in zip(mine, theirs, strict=False)]
+        if len(mine) != len(theirs) or any(a != b for a, b in shapes):
+            raise UsageError(f"{model_zip}: its {name} has arrays of other shapes than the model's")
+        setattr(holders[owner], attribute, jax.tree_util.tree_map(jnp.asarray, restored))
 
 
 def copy_statistics(source: Path, target: Path, trust_pickle: bool = False) -> None:
@@ -428,8 +516,9 @@ def safe_custom_objects(
             data = json.loads(archive.read("data"))
     except (zipfile.BadZipFile, KeyError, ValueError, OSError) as error:
         raise UsageError(f"{path} is not a Stable-Baselines3 model file: {error}") from error
-    if saved_backend(str(data.get("policy_class", {}).get("__module__", ""))) == "sbx":
-        raise UntrustedPickle(path, "an SBX model (its flax parameters are pickled)")
+    sbx = saved_backend(str(data.get("policy_class", {}).get("__module__", ""))) == "sbx"
+    if sbx and not has_jax_state(path):
+        raise UntrustedPickle(path, "an SBX model saved without its JAX state")
     replaced: dict[str, Any] = {}
     for key, entry in data.items():
         if not (isinstance(entry, dict) and ":serialized:" in entry):
@@ -438,10 +527,22 @@ def safe_custom_objects(
             replaced[key] = _trusted_class(path, key, entry)
         elif key in ("observation_space", "action_space"):
             replaced[key] = _space(path, key, entry)
-        elif key in ("lr_schedule", "learning_rate", "clip_range", "clip_range_vf"):
+        elif key in (
+            "lr_schedule",
+            "learning_rate",
+            "clip_range",
+            "clip_range_vf",
+            "clip_range_schedule",  # SBX PPO's, made again from clip_range
+        ):
             replaced[key] = _constant_schedule
         elif key == "policy_kwargs":
             replaced[key] = _policy_kwargs(path, entry)
+        elif sbx and key in SBX_REBUILT:
+            replaced[key] = None  # built anew, then restore_jax_state fills in the values
+        elif sbx and key == SBX_KEY:
+            import jax
+
+            replaced[key] = jax.random.PRNGKey(0)  # a placeholder until restore_jax_state
         elif key == "target_entropy":  # TQC's numpy float: "auto", -dim(actions), below
             replaced[key] = None
         elif key == "train_freq":
@@ -483,7 +584,11 @@ def load_sb3_model(
     the caller trains on, with ``kwargs`` as its hyperparameters."""
     from minitaur_env.training.algorithms import load_model
 
-    if not trust_pickle:
-        custom = safe_custom_objects(path, kwargs.get("env"), kwargs if training else None)
-        kwargs["custom_objects"] = {**custom, **kwargs.get("custom_objects", {})}
-    return load_model(cls, path, **kwargs)
+    if trust_pickle:
+        return load_model(cls, path, **kwargs)
+    custom = safe_custom_objects(path, kwargs.get("env"), kwargs if training else None)
+    kwargs["custom_objects"] = {**custom, **kwargs.get("custom_objects", {})}
+    model = load_model(cls, path, **kwargs)
+    if has_jax_state(path):
+        restore_jax_state(model, path)
+    return model
