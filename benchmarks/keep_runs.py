@@ -9,6 +9,9 @@ buffers and the best model stay behind. ``--curves-only`` keeps a run without it
 run stopped before its end (a screen; what a "curves" table of ``tables.yml`` reads), or
 one whose model is too large to commit (an SBX model, 9.5 MB), judged first with
 ``minitaur_table.py --row LABEL=RUN_FOLDER`` so that its figures stay in the tables.
+``--resumable`` keeps a stopped run with its newest checkpoint (model, statistics, replay
+buffer) and its best model, so that a run longer than a session goes on from a clone:
+copy the kept folder out and ``python train.py --resume COPY``.
 
     python benchmarks/keep_runs.py logs/sweeps/NAME/runs/* --into benchmarks/results/NAME
 """
@@ -20,7 +23,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from minitaur_env.training.run_folder import RunFolder
+from minitaur_env.training.run_folder import RunFolder, normalizer_json
 from minitaur_env.training.trial import TRIAL_FILE
 
 
@@ -31,7 +34,25 @@ def run_folders(path: Path) -> list[RunFolder]:
     return RunFolder.found_under(path)
 
 
-def keep(run: RunFolder, destination: Path, curves_only: bool = False) -> None:
+def resume_files(run: RunFolder) -> list[Path]:
+    """The newest checkpoint's files (model, statistics and their JSON, replay buffer) and
+    the best model's: what ``--resume`` reads, and what it compares new evaluations with."""
+    checkpoints = run.checkpoints()
+    if not checkpoints:
+        sys.exit(f"keep_runs.py: {run} has no checkpoint to resume from")
+    steps, model = checkpoints[0]
+    statistics = run.vecnormalize(steps)
+    best = [run.best_model, run.vecnormalize_beside(run.best_model)]
+    candidates = [model, statistics, normalizer_json(statistics), run.replay_buffer(steps), *best]
+    candidates.append(normalizer_json(best[1]))
+    return [path for path in candidates if path.is_file()]
+
+
+def keep(
+    run: RunFolder, destination: Path, curves_only: bool = False, resumable: bool = False
+) -> None:
+    curves_only = curves_only or resumable
+    resumed_from = resume_files(run) if resumable else []  # refused before anything is copied
     if not curves_only and not run.zoo_model.is_file():
         sys.exit(
             f"keep_runs.py: {run} has no final model {run.zoo_model.name}; unfinished? "
@@ -55,6 +76,10 @@ def keep(run: RunFolder, destination: Path, curves_only: bool = False) -> None:
     trial = run.path.parents[1] / TRIAL_FILE  # <trial>/<algo>/<env>_N
     if trial.is_file():
         shutil.copy2(trial, kept.path / trial.name)
+    for source in resumed_from:
+        target = kept.path / source.relative_to(run.path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(source, target)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -66,6 +91,12 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="keep runs stopped before their end: evaluations and monitors, no model",
     )
+    parser.add_argument(
+        "--resumable",
+        action="store_true",
+        help="keep a stopped run with its newest checkpoint and best model, to go on with "
+        "train.py --resume from a copy of the kept folder",
+    )
     args = parser.parse_args(argv)
     found = [run for path in args.runs for run in run_folders(path)]
     if not found:
@@ -74,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     if len(set(seeds)) != len(seeds):
         sys.exit(f"keep_runs.py: two runs share a seed ({sorted(seeds)}); keep them apart")
     for run, seed in zip(found, seeds, strict=True):
-        keep(run, args.into / f"seed{seed}", args.curves_only)
+        keep(run, args.into / f"seed{seed}", args.curves_only, args.resumable)
         print(f"{run} -> {args.into / f'seed{seed}'}")
 
 

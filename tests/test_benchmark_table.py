@@ -492,3 +492,30 @@ def test_figure_one_draws_the_tables_figure_rows_in_their_order(monkeypatch):
     monkeypatch.setitem(module.TABLES, "t", {"figure": ["sac", "gone"], "rows": {}})
     with pytest.raises(UsageError, match=r"tables\.yml: figure of 't' names no row 'gone'"):
         module.figure_groups(groups, args)
+
+
+def test_keep_runs_resumable_keeps_what_a_resume_needs_and_it_goes_on(finished_run, tmp_path):
+    stopped = tmp_path / "logs" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(finished_run, stopped, ignore=shutil.ignore_patterns("MinitaurBulletEnv-v0*"))
+    keep_runs(stopped, tmp_path / "kept", "--resumable")
+    folder = tmp_path / "kept" / "seed3"
+    names = {p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file()}
+    assert {
+        "checkpoints/rl_model_160_steps.zip",
+        "checkpoints/rl_model_vecnormalize_160_steps.json",
+        "checkpoints/rl_model_replay_buffer_160_steps.npz",
+        "best_model.zip",
+    } <= names
+    assert "checkpoints/rl_model_80_steps.zip" not in names  # the newest only
+    # Another session, another machine: a copy of the kept folder goes on from 160.
+    clone = tmp_path / "clone" / "MinitaurBulletEnv-v0_1"
+    shutil.copytree(folder, clone)
+    resumed = run_script("train.py", "--resume", str(clone), "-n", "240", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "(from 160)" in resumed.stdout
+    with np.load(clone / "evaluations.npz") as logged:
+        assert logged["timesteps"].tolist() == [80, 160, 240]
+    shutil.rmtree(stopped / "checkpoints")  # control: nothing to resume from, refused
+    with pytest.raises(SystemExit, match="has no checkpoint to resume from"):
+        keep_runs(stopped, tmp_path / "again", "--resumable")
+    assert not (tmp_path / "again").exists()
