@@ -375,3 +375,36 @@ def test_colored_noise_on_sbx_explores_as_on_torch_trains_saves_and_resumes(tmp_
     np.testing.assert_array_equal(
         safe.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0]
     )
+
+
+@pytest.mark.parametrize("backend", ["sb3", "sbx"])
+def test_noise_color_until_turns_the_exploring_noise_white_there_and_after_a_resume(
+    tmp_path, backend
+):
+    if backend == "sbx":
+        needs("sbx")
+    config = tiny_run({"noise_color": 1.0}, backend, noise_color_until=0.5)
+    experiment = Experiment.create(config, tmp_path, verbose=0)
+    result = experiment.run()
+    assert result.status == "completed"
+    assert experiment.model.policy.noise_color == 0.0  # white from step 30 of 60
+    control = Experiment.create(tiny_run({"noise_color": 1.0}, backend), tmp_path, verbose=0)
+    control.run()
+    assert control.model.policy.noise_color == 1.0  # without the key: colored to the end
+    # Resumed (its zip's policy_kwargs still say noise_color 1): white again from the start.
+    resumed = Experiment.resume(result.run.path, n_timesteps=90, verbose=0)
+    assert resumed.run().status == "completed" and resumed.resumed_at == 60
+    assert resumed.model.policy.noise_color == 0.0
+
+
+@pytest.mark.parametrize(
+    ("hyperparams", "message"),
+    [
+        ({"noise_color_until": 1.5}, "noise_color_until must be a fraction of n_timesteps"),
+        ({"noise_color_until": 0.5}, "the policy explores with white noise already"),
+    ],
+)
+def test_noise_color_until_bad_values_are_one_line(tmp_path, hyperparams, message):
+    color = {"noise_color": 1.0} if hyperparams["noise_color_until"] > 1 else {}
+    with pytest.raises(UsageError, match=message):
+        Experiment.create(tiny_run(color, **hyperparams), tmp_path, verbose=0).run()

@@ -19,7 +19,12 @@ from minitaur_env.training import TrainingDiverged
 from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_env
-from minitaur_env.training.hyperparams import entropy_decay, hard_draws, push_curriculum
+from minitaur_env.training.hyperparams import (
+    entropy_decay,
+    hard_draws,
+    noise_color_until,
+    push_curriculum,
+)
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.safe_load import (
     embed_evaluation,
@@ -113,6 +118,21 @@ class PushCurriculum(_StepSchedule):
         self.logger.record("train/push_scale", self.applied)
 
 
+class WhiteNoiseFrom(_StepSchedule):
+    """Colored exploring noise until step ``step``, SAC's own white noise from then on: the
+    policy's ``noise_color`` is set to 0 there, and again before a run resumed past
+    ``step`` trains (its zip's policy_kwargs still name the color it started with)."""
+
+    def __init__(self, step: int) -> None:
+        super().__init__()
+        self.step = step
+
+    def _apply(self) -> None:
+        if self.model.num_timesteps >= self.step and self.model.policy.noise_color:
+            self.model.policy.noise_color = 0.0
+        self.logger.record("train/noise_color", float(self.model.policy.noise_color))
+
+
 class HardDraws(BaseCallback):
     """The first ``envs`` training envs draw ``realism``'s fields from its narrower ranges
     (``MinitaurBulletEnv.narrow_realism``), set when training starts or resumes; the other
@@ -146,6 +166,9 @@ def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     draws = hard_draws(config.hyperparams, config.n_envs)
     if draws is not None:
         callbacks.append(HardDraws(*draws))
+    until = noise_color_until(config.hyperparams)
+    if until is not None:
+        callbacks.append(WhiteNoiseFrom(int(until * steps)))
     return callbacks
 
 

@@ -18,6 +18,7 @@ from minitaur_env.training.hyperparams import (
     hard_draws,
     load_hyperparams,
     mirrored,
+    noise_color_until,
     push_curriculum,
 )
 from minitaur_env.training.single_env import make_env, qualified_env_id
@@ -141,6 +142,7 @@ class ExperimentConfig:
                 f"it is for {', '.join(sorted(OFF_POLICY))}"
             )
         entropy_decay(self.hyperparams, self.algo, self.backend)
+        noise_color_until(self.hyperparams)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)

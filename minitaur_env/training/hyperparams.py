@@ -33,8 +33,11 @@ PUSH_CURRICULUM_KEY = "push_curriculum"
 # the randomization, met more often); the other training envs and every evaluation keep
 # the env's own ranges.
 HARD_DRAWS_KEY = "hard_draws"
+# ``noise_color_until: 0.3``: SAC explores with the policy's colored noise (its
+# ``noise_color``) until that fraction of n_timesteps, and with white noise after it.
+NOISE_COLOR_UNTIL_KEY = "noise_color_until"
 # Read by callbacks, not the algorithm.
-CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY, HARD_DRAWS_KEY)
+CALLBACK_KEYS = (ENTROPY_DECAY_KEY, PUSH_CURRICULUM_KEY, HARD_DRAWS_KEY, NOISE_COLOR_UNTIL_KEY)
 # ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
 # happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
 MIRROR_KEY = "mirror"
@@ -208,6 +211,25 @@ def hard_draws(hyperparams: dict[str, Any], n_envs: int) -> tuple[int, dict[str,
     if not isinstance(realism, dict) or not realism:
         raise UsageError(f"{HARD_DRAWS_KEY}.realism: expected a mapping of fields, got {realism!r}")
     return envs, realism
+
+
+def noise_color_until(hyperparams: dict[str, Any]) -> float | None:
+    """The fraction of n_timesteps of a ``noise_color_until`` entry, or None without one.
+    It needs colored noise to end: a policy whose ``policy_kwargs`` set ``noise_color``."""
+    until = hyperparams.get(NOISE_COLOR_UNTIL_KEY)
+    if until is None:
+        return None
+    if isinstance(until, bool) or not isinstance(until, (int, float)) or not 0 < until < 1:
+        raise UsageError(
+            f"{NOISE_COLOR_UNTIL_KEY} must be a fraction of n_timesteps in (0, 1), got {until!r}"
+        )
+    color = (hyperparams.get("policy_kwargs") or {}).get("noise_color", 0)
+    if not color:
+        raise UsageError(
+            f"{NOISE_COLOR_UNTIL_KEY}: the policy explores with white noise already; it ends "
+            "a policy's colored noise (policy: StabilizedMlpPolicy, policy_kwargs noise_color)"
+        )
+    return float(until)
 
 
 def mirrored(hyperparams: dict[str, Any]) -> bool:
