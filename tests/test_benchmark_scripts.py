@@ -511,3 +511,69 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
     refused = run_script("benchmarks/default_minutes.py", "--settings", "10000", cwd=tmp_path)
     assert refused.returncode == 2
     assert "'10000': expected FREQ:EPISODES" in error_lines(refused.stderr)[-1]
+
+
+def test_falls_by_draw_plays_evaluate_pys_episodes_and_gives_each_policy_the_same_draws(
+    tmp_path,
+):
+    import csv
+
+    robust = next(
+        model
+        for _, model in pretrained_models()
+        if model.parent.name.startswith("MinitaurBulletTrotRandomized")
+    )
+    table = tmp_path / "falls.csv"
+    result = run_script(
+        "benchmarks/falls_by_draw.py",
+        *("--policy", f"base={robust}", "--policy", f"again={robust}"),
+        *("--episodes", "1", "--seed", "20001", "--csv", str(table)),
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    rows = list(csv.DictReader(table.open()))
+    assert [(row["policy"], row["episode_seed"]) for row in rows] == [
+        ("base", "20001"),
+        ("again", "20001"),
+    ]
+    base, again = rows
+    assert base == {**again, "policy": "base"}  # the same draws, the same play
+    # The drawn realism of the Tan 2018 preset: control step 3-20 ms, latency 0-40 ms.
+    assert 0.003 <= float(base["control_time_step"]) <= 0.02
+    assert 0 < float(base["control_latency"]) <= 0.04
+    # Each table ends with both policies' totals.
+    totals = [line for line in result.stdout.splitlines() if line.startswith("| all |")]
+    assert len(totals) == 2 and all(line.count(" / 1 (") == 2 for line in totals)
+    statistics = tmp_path / "evaluate.json"
+    evaluated = run_script(
+        "evaluate.py",
+        *("--model", str(robust), "--episodes", "1", "--seed", "20001"),
+        *("--json", str(statistics)),
+        cwd=tmp_path,
+    )
+    assert evaluated.returncode == 0, evaluated.stderr
+    summary = json.loads(statistics.read_text())["summary"]
+    assert summary["return"]["mean"] == pytest.approx(float(base["return"]), abs=1e-6)
+
+
+def test_falls_by_draw_refuses_a_policy_whose_env_draws_no_control_step(tmp_path):
+    sac = next(model for _, model in pretrained_models() if model.parents[1].name == "sac")
+    result = run_script("benchmarks/falls_by_draw.py", "--policy", f"sac={sac}", cwd=tmp_path)
+    assert result.returncode == 2 and len(error_lines(result)) == 1, result.stderr
+    assert error_lines(result)[0].endswith("so there is nothing to group its falls by")
+    twice = run_script(
+        "benchmarks/falls_by_draw.py",
+        *("--policy", f"sac={sac}", "--policy", f"sac={sac}"),
+        cwd=tmp_path,
+    )
+    assert twice.returncode == 2 and "given twice" in error_lines(twice)[-1]
+
+
+def test_falls_by_draw_bins_hold_their_lower_edge_and_the_last_its_upper():
+    falls = benchmark_module("falls_by_draw")
+    edges = (3.0, 8.0, 12.0, 16.0, 20.0)
+    labels = [falls.bin_label(value, edges) for value in (2.9, 3.0, 7.99, 8.0, 20.0, 20.5)]
+    assert labels == ["< 3 ms", "3-8 ms", "3-8 ms", "8-12 ms", "16-20 ms", "> 20 ms"]
+    low, high = falls.wilson_interval(4, 150)
+    assert low < 4 / 150 < high and high - low < 0.06
+    assert falls.wilson_interval(0, 150)[0] == 0 < falls.wilson_interval(0, 150)[1] < 0.03

@@ -258,11 +258,13 @@ def run_episodes(
     episodes: int,
     seed: int,
     deterministic: bool = True,
+    from_reset: Callable[[dict[str, Any]], dict[str, float]] | None = None,
 ) -> list[dict[str, float]]:
     """One record per episode: return, length, distance, speed, fall, reward terms, and
     under pushes the pushes begun. The one loop that plays episodes: evaluation, shipping,
     packaging and the benchmarks all call it. ``policy`` is a loaded policy, or any
-    function of the observation (a benchmark's zero action)."""
+    function of the observation (a benchmark's zero action). ``from_reset`` adds fields
+    read from each reset's info (a benchmark's drawn dynamics)."""
     if hasattr(policy, "act"):  # a LoadedPolicy, an OnnxPolicy or one like them
         policy.check_spaces(env.observation_space, env.action_space)
         loaded = policy
@@ -273,6 +275,7 @@ def run_episodes(
     records = []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
+        drawn = from_reset(info) if from_reset is not None else {}
         # Read after the reset: a randomized control step is drawn per episode.
         dt = float(getattr(env.unwrapped, "dt", 0.0) or 0.0)
         start = np.asarray(info.get("base_position", np.zeros(3)), dtype=float)
@@ -299,6 +302,7 @@ def run_episodes(
                     slips.append(info["foot_slip"])
                 actions_at_limit += info["actions_at_limit"]
         record = {"return": episode_return, "length": float(length), "fell": float(terminated)}
+        record.update(drawn)
         if "push_force" in info:
             record["pushes"] = float(pushes)
         if "base_position" in info:

@@ -2,7 +2,8 @@
 
 Judging plays fixed blocks of small seeds, the ones published figures were measured on:
 the report's episodes start at ``REPORT_SEED`` (evaluate.py, ship, package and the docs'
-tables) and shipping's selection at ``SELECTION_SEED``. A run's own envs, its training
+tables), shipping's selection at ``SELECTION_SEED`` and the study of which drawn
+dynamics a policy falls on at ``FALLS_SEED``. A run's own envs, its training
 envs, the env of its periodic evaluations and its videos, draw seeds at 2**84 and above, laid out by
 purpose, run seed, the env step the session started at and the env's index: a resumed
 session never replays a seed of an earlier one, of the other purpose or of a judging
@@ -16,6 +17,7 @@ import dataclasses
 
 REPORT_SEED = 12345
 SELECTION_SEED = 5000
+FALLS_SEED = 20000  # benchmarks/falls_by_draw.py: which draws a policy falls on
 JUDGING_SEED_LIMIT = 2**32  # judging blocks lie below; a run's own seeds far above
 
 _PURPOSES = {"training": 1, "evaluation": 2, "video": 3}
