@@ -10,13 +10,18 @@ from gymnasium.envs.classic_control import pendulum
 
 from minitaur_env.training import Experiment, ExperimentConfig
 from minitaur_env.training.seeds import (
+    FALLS_SEED,
     REPORT_SEED,
     SELECTION_SEED,
     SeedPlan,
     judging_block,
 )
 
-JUDGING = [judging_block(SELECTION_SEED, 1000), judging_block(REPORT_SEED, 1000)]
+JUDGING = [
+    judging_block(SELECTION_SEED, 1000),
+    judging_block(REPORT_SEED, 1000),
+    judging_block(FALLS_SEED, 1000),
+]
 
 
 def overlapping(blocks: list[range]) -> list[tuple[range, range]]:
