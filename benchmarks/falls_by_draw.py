@@ -68,10 +68,11 @@ def bin_labels(edges: tuple[float, ...]) -> list[str]:
 
 
 def bin_label(value_ms: float, edges: tuple[float, ...]) -> str:
-    """A bin holds its lower edge; the last one also its upper edge (a draw of exactly 20 ms)."""
-    if value_ms == edges[-1]:
-        return bin_labels(edges)[-2]
-    return bin_labels(edges)[int(np.searchsorted(edges, value_ms, side="right"))]
+    """A bin holds its upper edge, the first also its lower one: the control step is drawn
+    in whole physics steps, so 8 ms goes with 4-6 ms as in docs/sim-to-real.md's table."""
+    if value_ms == edges[0]:
+        return bin_labels(edges)[1]
+    return bin_labels(edges)[int(np.searchsorted(edges, value_ms, side="left"))]
 
 
 def tally(records: dict[str, list[dict[str, float]]], field: str, edges: tuple[float, ...]) -> str:
@@ -79,7 +80,7 @@ def tally(records: dict[str, list[dict[str, float]]], field: str, edges: tuple[f
     cells: dict[str, dict[str, list[dict[str, float]]]] = {}
     for label, episodes in records.items():
         for record in episodes:
-            group = bin_label(1000 * record[field], edges)
+            group = bin_label(round(1000 * record[field], 6), edges)
             cells.setdefault(group, {}).setdefault(label, []).append(record)
     name = GROUPED_BY[field][0]
     columns = [f"{label}: falls / episodes (mean return)" for label in records]

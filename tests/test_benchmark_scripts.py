@@ -569,11 +569,12 @@ def test_falls_by_draw_refuses_a_policy_whose_env_draws_no_control_step(tmp_path
     assert twice.returncode == 2 and "given twice" in error_lines(twice)[-1]
 
 
-def test_falls_by_draw_bins_hold_their_lower_edge_and_the_last_its_upper():
+def test_falls_by_draw_bins_hold_their_upper_edge_and_the_first_its_lower():
     falls = benchmark_module("falls_by_draw")
     edges = (3.0, 8.0, 12.0, 16.0, 20.0)
-    labels = [falls.bin_label(value, edges) for value in (2.9, 3.0, 7.99, 8.0, 20.0, 20.5)]
-    assert labels == ["< 3 ms", "3-8 ms", "3-8 ms", "8-12 ms", "16-20 ms", "> 20 ms"]
+    values = (2.9, 3.0, 7.99, 8.0, 8.01, 20.0, 20.5)
+    labels = [falls.bin_label(value, edges) for value in values]
+    assert labels == ["< 3 ms", "3-8 ms", "3-8 ms", "3-8 ms", "8-12 ms", "16-20 ms", "> 20 ms"]
     low, high = falls.wilson_interval(4, 150)
     assert low < 4 / 150 < high and high - low < 0.06
     assert falls.wilson_interval(0, 150)[0] == 0 < falls.wilson_interval(0, 150)[1] < 0.03
