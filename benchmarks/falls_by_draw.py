@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from minitaur_env.cli import add_trust_pickle
+from minitaur_env.cli import add_trust_pickle, labelled_files
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy, playing_kwargs, run_episodes
 from minitaur_env.training.seeds import FALLS_SEED, judging_block
@@ -127,14 +127,7 @@ def study(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         seeds = judging_block(args.seed, args.episodes)
     except ValueError as error:
         parser.error(str(error))
-    models: dict[str, Path] = {}
-    for item in args.policy:
-        label, sep, path = item.partition("=")
-        if not sep or not label or not Path(path).is_file():
-            parser.error(f"--policy expects LABEL=MODEL.zip with an existing file, got {item!r}")
-        if label in models:
-            parser.error(f"--policy label {label!r} is given twice; each column needs its own")
-        models[label] = Path(path)
+    models = labelled_files(args.policy, "--policy")
     if args.csv:
         args.csv.parent.mkdir(parents=True, exist_ok=True)
 

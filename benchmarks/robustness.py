@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from minitaur_env import RANDOMIZED_KWARGS
-from minitaur_env.cli import add_trust_pickle
+from minitaur_env.cli import add_trust_pickle, labelled_files
 from minitaur_env.gait import has_gait_prior
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy, pretrained_models
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     add_trust_pickle(parser)
     args = parser.parse_args(argv)
     try:
-        return judge_all(args, parser)
+        return judge_all(args)
     except UsageError as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 2
@@ -76,17 +76,8 @@ def shipped_policies() -> dict[str, Path]:
     }
 
 
-def judge_all(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    policies = {}
-    for item in args.policy:
-        label, sep, path = item.partition("=")
-        if not sep or not Path(path).is_file():
-            parser.error(f"--policy expects LABEL=MODEL.zip with an existing file, got {item!r}")
-        if label in policies:
-            parser.error(f"--policy label {label!r} is given twice; each row needs its own")
-        policies[label] = Path(path)
-    if not args.policy:
-        policies = shipped_policies()
+def judge_all(args: argparse.Namespace) -> int:
+    policies = labelled_files(args.policy, "--policy") if args.policy else shipped_policies()
     conditions = {name: CONDITIONS[name] for name in args.conditions or CONDITIONS}
 
     cells: dict[str, dict[str, dict[str, float]]] = {}

@@ -54,6 +54,20 @@ def add_trust_pickle(parser: argparse.ArgumentParser, what: str = "in or beside 
     )
 
 
+def labelled_files(items: list[str], flag: str) -> dict[str, Path]:
+    """The LABEL=FILE values of a repeated flag, in their order (a benchmark's policies);
+    a malformed one, a missing file or a label given twice is a UsageError."""
+    files: dict[str, Path] = {}
+    for item in items:
+        label, sep, path = item.partition("=")
+        if not sep or not label or not Path(path).is_file():
+            raise UsageError(f"{flag} expects LABEL=FILE with an existing file, got {item!r}")
+        if label in files:
+            raise UsageError(f"{flag} label {label!r} is given twice; each needs its own")
+        files[label] = Path(path)
+    return files
+
+
 def new_parser(prog: str, description: str | None) -> argparse.ArgumentParser:
     return OneLineErrorParser(
         prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
