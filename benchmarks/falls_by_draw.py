@@ -28,6 +28,7 @@ import numpy as np
 from minitaur_env.cli import add_trust_pickle, labelled_files
 from minitaur_env.training import UsageError
 from minitaur_env.training.evaluation import load_policy, playing_kwargs, run_episodes
+from minitaur_env.training.files import atomic_path
 from minitaur_env.training.seeds import FALLS_SEED, judging_block
 from minitaur_env.training.single_env import make_env
 
@@ -162,7 +163,7 @@ def study(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         print(tally(records, field, edges))
     if args.csv:
         columns = ["policy", "episode_seed", *records[baseline][0]]
-        with args.csv.open("w", newline="") as file:
+        with atomic_path(args.csv) as staged, staged.open("w", newline="") as file:
             writer = csv.DictWriter(file, fieldnames=columns, extrasaction="ignore")
             writer.writeheader()
             for label, played in records.items():
