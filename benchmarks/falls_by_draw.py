@@ -115,19 +115,19 @@ def main(argv: list[str] | None = None) -> int:
     add_trust_pickle(parser)
     args = parser.parse_args(argv)
     try:
-        return study(args, parser)
+        return study(args)
     except UsageError as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 2
 
 
-def study(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+def study(args: argparse.Namespace) -> int:
     if args.episodes < 1:
-        parser.error(f"--episodes must be at least 1, got {args.episodes}")
+        raise UsageError(f"--episodes must be at least 1, got {args.episodes}")
     try:
         seeds = judging_block(args.seed, args.episodes)
     except ValueError as error:
-        parser.error(str(error))
+        raise UsageError(str(error)) from error
     models = labelled_files(args.policy, "--policy")
     if args.csv:
         args.csv.parent.mkdir(parents=True, exist_ok=True)
