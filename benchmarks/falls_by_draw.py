@@ -10,6 +10,10 @@ The episodes are what ``python evaluate.py --model M --episodes N --seed 20000``
 (seeds from ``FALLS_SEED``, a judging block of their own), so policies of the same env meet
 the same draws. A fall rate is printed with its 95 % Wilson interval: at a few falls in
 150 episodes two policies seldom differ by more than chance.
+
+A policy already studied need not play again: ``--policy entry=falls.csv`` takes the
+episodes of ``entry`` from an earlier ``--csv`` table (they must be the same seeds, and
+every policy's env the same), so a new policy is compared in half the time.
 """
 
 from __future__ import annotations
@@ -100,14 +104,60 @@ def tally(records: dict[str, list[dict[str, float]]], field: str, edges: tuple[f
     return "\n".join(lines)
 
 
+def play(policy: Any, model: Path, seeds: range) -> list[dict[str, float]]:
+    """The policy's deterministic episodes on ``seeds`` of its own env, each with its draws."""
+    env = make_env(policy.env_id, playing_kwargs(policy, {}))
+    try:
+        missing = [field for field in GROUPED_BY if field not in drawn(env.reset()[1])]
+        if missing:
+            raise UsageError(
+                f"{model}: its env ({policy.env_id}) draws no {' or '.join(missing)} "
+                "per episode, so there is nothing to group its falls by"
+            )
+        return run_episodes(policy, env, len(seeds), seeds.start, from_reset=drawn)
+    finally:
+        env.close()
+
+
+def recorded_episodes(table: Path, label: str, seeds: range) -> tuple[str, list[dict[str, float]]]:
+    """``label``'s episodes from an earlier ``--csv`` (its env and records), refused unless
+    they are the episodes asked for: the same seeds, in order."""
+    with table.open(newline="") as file:
+        rows = list(csv.DictReader(file))
+    labels = list(dict.fromkeys(row.get("policy") for row in rows))
+    mine = [row for row in rows if row.get("policy") == label]
+    if not mine:
+        raise UsageError(f"{table} holds no episodes of {label!r} (its policies: {labels})")
+    needed = {"env", "episode_seed", "return", "fell", *GROUPED_BY}
+    if not needed <= set(mine[0]):
+        missing = ", ".join(sorted(needed - set(mine[0])))
+        raise UsageError(f"{table} is not a falls_by_draw.py --csv table: it has no {missing}")
+    held = [int(row["episode_seed"]) for row in mine]
+    if held != list(seeds):
+        raise UsageError(
+            f"{table} holds {label!r} on seeds {held[0]}..{held[-1]} ({len(held)} episodes), "
+            f"not the {seeds.start}..{seeds.stop - 1} asked (--seed, --episodes)"
+        )
+    envs = {row["env"] for row in mine}
+    if len(envs) > 1:
+        raise UsageError(f"{table} holds {label!r} on more than one env: {sorted(envs)}")
+    skipped = {"policy", "env", "episode_seed"}
+    records = [
+        {name: float(value) for name, value in row.items() if name not in skipped and value}
+        for row in mine
+    ]
+    return envs.pop(), records
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--policy",
         action="append",
         required=True,
-        metavar="LABEL=MODEL.zip",
-        help="a policy to play; give it more than once to compare (the first is the baseline)",
+        metavar="LABEL=MODEL.zip|TABLE.csv",
+        help="a policy to play, or its episodes in an earlier --csv table; give it more than "
+        "once to compare (the first is the baseline)",
     )
     parser.add_argument("--episodes", type=int, default=150)
     parser.add_argument("--seed", type=int, default=FALLS_SEED, help="seed of episode 0")
@@ -128,31 +178,37 @@ def study(args: argparse.Namespace) -> int:
         seeds = judging_block(args.seed, args.episodes)
     except ValueError as error:
         raise UsageError(str(error)) from error
-    models = labelled_files(args.policy, "--policy")
+    sources = labelled_files(args.policy, "--policy")
     if args.csv:
         args.csv.parent.mkdir(parents=True, exist_ok=True)
 
+    # Every refusal comes before the first episode: a study can take hours.
+    recorded: dict[str, list[dict[str, float]]] = {}
+    policies: dict[str, Any] = {}
+    env_ids: dict[str, str] = {}
+    for label, source in sources.items():
+        if source.suffix == ".csv":
+            env_ids[label], recorded[label] = recorded_episodes(source, label, seeds)
+        else:
+            policies[label] = load_policy(source, trust_pickle=args.trust_pickle)
+            env_ids[label] = policies[label].env_id
+    if len(set(env_ids.values())) > 1:
+        envs = ", ".join(f"{label}: {env_id}" for label, env_id in env_ids.items())
+        raise UsageError(f"the policies' episodes come from different envs ({envs})")
+
     records: dict[str, list[dict[str, float]]] = {}
-    for label, model in models.items():
-        policy = load_policy(model, trust_pickle=args.trust_pickle)
-        env = make_env(policy.env_id, playing_kwargs(policy, {}))
-        try:
-            missing = [field for field in GROUPED_BY if field not in drawn(env.reset()[1])]
-            if missing:
-                raise UsageError(
-                    f"{model}: its env ({policy.env_id}) draws no {' or '.join(missing)} "
-                    "per episode, so there is nothing to group its falls by"
-                )
-            played = run_episodes(policy, env, len(seeds), seeds.start, from_reset=drawn)
-        finally:
-            env.close()
-        records[label] = played
+    for label, source in sources.items():
+        if label in recorded:
+            records[label] = recorded[label]
+        else:
+            records[label] = play(policies[label], source, seeds)
+        played = records[label]
         falls = int(sum(record["fell"] for record in played))
         low, high = wilson_interval(falls, len(played))
         print(
             f"{label}: {falls} falls in {len(played)} episodes ({100 * falls / len(played):.1f} %, "
             f"95 % interval {100 * low:.1f}-{100 * high:.1f} %), mean return "
-            f"{np.mean([record['return'] for record in played]):.2f}; {model}",
+            f"{np.mean([record['return'] for record in played]):.2f}; {source}",
             flush=True,
         )
 
@@ -162,13 +218,16 @@ def study(args: argparse.Namespace) -> int:
         print()
         print(tally(records, field, edges))
     if args.csv:
-        columns = ["policy", "episode_seed", *records[baseline][0]]
+        columns = ["policy", "env", "episode_seed"]
+        for played in records.values():
+            columns += [name for name in played[0] if name not in columns]
         with atomic_path(args.csv) as staged, staged.open("w", newline="") as file:
-            writer = csv.DictWriter(file, fieldnames=columns, extrasaction="ignore")
+            writer = csv.DictWriter(file, fieldnames=columns)
             writer.writeheader()
             for label, played in records.items():
                 for seed, record in zip(seeds, played, strict=True):
-                    writer.writerow({"policy": label, "episode_seed": seed, **record})
+                    row = {"policy": label, "env": env_ids[label], "episode_seed": seed}
+                    writer.writerow({**row, **record})
     return 0
 
 

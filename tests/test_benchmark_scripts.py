@@ -552,6 +552,46 @@ def test_falls_by_draw_plays_evaluate_pys_episodes_and_gives_each_policy_the_sam
     summary = json.loads(statistics.read_text())["summary"]
     assert summary["return"]["mean"] == pytest.approx(float(base["return"]), abs=1e-6)
 
+    # A policy's episodes from that table stand in for playing it again.
+    table_again = tmp_path / "falls-again.csv"
+    reread = run_script(
+        "benchmarks/falls_by_draw.py",
+        *("--policy", f"base={table}", "--policy", f"played={robust}"),
+        *("--episodes", "1", "--seed", "20001", "--csv", str(table_again)),
+        cwd=tmp_path,
+    )
+    assert reread.returncode == 0, reread.stderr
+    recorded, played = list(csv.DictReader(table_again.open()))
+    assert recorded == base and played == {**base, "policy": "played"}
+    assert [line for line in reread.stdout.splitlines() if line.startswith("| ")] == [
+        line.replace("again:", "played:")
+        for line in result.stdout.splitlines()
+        if line.startswith("| ")
+    ]
+    # Refused before any episode: other seeds than the table's, another env's episodes.
+    other_seeds = run_script(
+        "benchmarks/falls_by_draw.py", "--policy", f"base={table}", "--episodes", "2", cwd=tmp_path
+    )
+    assert other_seeds.returncode == 2 and len(error_lines(other_seeds)) == 1
+    assert (
+        "holds 'base' on seeds 20001..20001 (1 episodes), not the 20000..20001 asked"
+        in (error_lines(other_seeds)[0])
+    )
+    elsewhere = tmp_path / "elsewhere.csv"
+    elsewhere.write_text(
+        table.read_text().replace(",MinitaurBulletTrotRandomized-v0,", ",Other-v0,")
+    )
+    mixed = run_script(
+        "benchmarks/falls_by_draw.py",
+        *("--policy", f"base={elsewhere}", "--policy", f"played={robust}"),
+        *("--episodes", "1", "--seed", "20001"),
+        cwd=tmp_path,
+    )
+    assert mixed.returncode == 2 and error_lines(mixed) == [
+        "falls_by_draw.py: error: the policies' episodes come from different envs "
+        "(base: Other-v0, played: MinitaurBulletTrotRandomized-v0)"
+    ]
+
 
 def test_falls_by_draw_refuses_a_policy_whose_env_draws_no_control_step(tmp_path):
     sac = next(model for _, model in pretrained_models() if model.parents[1].name == "sac")
