@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from minitaur_env.cli import add_trust_pickle, labelled_files
-from minitaur_env.training import UsageError
+from minitaur_env.cli import add_trust_pickle, labelled_files, refuse_in_one_line
+from minitaur_env.training import OneLineErrorParser, UsageError
 from minitaur_env.training.evaluation import load_policy, playing_kwargs, run_episodes
 from minitaur_env.training.files import atomic_path
 from minitaur_env.training.seeds import FALLS_SEED, judging_block
@@ -150,7 +150,7 @@ def recorded_episodes(table: Path, label: str, seeds: range) -> tuple[str, list[
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineErrorParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--policy",
         action="append",
@@ -164,11 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--csv", type=Path, help="also write every episode, one row each")
     add_trust_pickle(parser)
     args = parser.parse_args(argv)
-    try:
-        return study(args)
-    except UsageError as error:
-        print(f"{parser.prog}: error: {error}", file=sys.stderr)
-        return 2
+    return refuse_in_one_line(parser.prog, lambda: study(args))
 
 
 def study(args: argparse.Namespace) -> int:

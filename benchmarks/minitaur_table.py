@@ -39,7 +39,8 @@ import gymnasium as gym
 import numpy as np
 import yaml
 
-from minitaur_env.training import UsageError
+from minitaur_env.cli import refuse_in_one_line
+from minitaur_env.training import OneLineErrorParser, UsageError
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci, plot_iqm_curves
 from minitaur_env.training.files import atomic_path
 from minitaur_env.training.run_folder import RunFolder
@@ -385,7 +386,7 @@ def docs_tables(args: argparse.Namespace, root: Path, write: bool) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineErrorParser(description=__doc__.splitlines()[0])
     parser.add_argument("--table", choices=list(TABLES), default="benchmark")
     parser.add_argument(
         "--row",
@@ -446,7 +447,5 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except UsageError as error:  # e.g. a pickle that needs --trust-pickle
-        sys.exit(f"minitaur_table.py: error: {error}")
+    # A UsageError, e.g. a pickle that needs --trust-pickle, is one line.
+    sys.exit(refuse_in_one_line("minitaur_table.py", main))

@@ -23,9 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from minitaur_env import RANDOMIZED_KWARGS
-from minitaur_env.cli import add_trust_pickle, labelled_files
+from minitaur_env.cli import add_trust_pickle, labelled_files, refuse_in_one_line
 from minitaur_env.gait import has_gait_prior
-from minitaur_env.training import UsageError
+from minitaur_env.training import OneLineErrorParser
 from minitaur_env.training.evaluation import load_policy, pretrained_models
 from minitaur_env.training.seeds import REPORT_SEED
 from minitaur_env.training.shipping import condition_label, judge
@@ -47,7 +47,7 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineErrorParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--policy",
         action="append",
@@ -61,11 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write the cells as JSON")
     add_trust_pickle(parser)
     args = parser.parse_args(argv)
-    try:
-        return judge_all(args)
-    except UsageError as error:
-        print(f"{parser.prog}: error: {error}", file=sys.stderr)
-        return 2
+    return refuse_in_one_line(parser.prog, lambda: judge_all(args))
 
 
 def shipped_policies() -> dict[str, Path]:

@@ -68,6 +68,15 @@ def labelled_files(items: list[str], flag: str) -> dict[str, Path]:
     return files
 
 
+def refuse_in_one_line(prog: str, work: Callable[[], int | None]) -> int:
+    """Do a command's work; a UsageError, the user's mistake, is one line naming it, exit 2."""
+    try:
+        return work() or 0
+    except UsageError as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+
+
 def new_parser(prog: str, description: str | None) -> argparse.ArgumentParser:
     return OneLineErrorParser(
         prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -478,10 +487,7 @@ def run(name: str, argv: list[str] | None = None, prog: str | None = None) -> in
     prog = prog or f"minitaur {name}"
     args = command.parser(prog).parse_args(argv)
     try:
-        return command.run(args, argv, prog)
-    except UsageError as error:
-        print(f"{prog}: error: {error}", file=sys.stderr)
-        return 2
+        return refuse_in_one_line(prog, lambda: command.run(args, argv, prog))
     except OSError as error:  # the machine's, not the user's: a full disk, a read-only folder
         print(f"{prog}: error: {' '.join(str(error).split())}", file=sys.stderr)
         return 1

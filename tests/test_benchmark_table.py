@@ -259,7 +259,7 @@ def test_a_run_without_evaluations_is_one_line(finished_run, tmp_path):
     refused = run_script(
         "benchmarks/minitaur_table.py", "--row", f"x={tmp_path}/r/seed*", cwd=tmp_path
     )
-    assert refused.returncode == 1
+    assert refused.returncode == 2
     assert error_lines(refused) == [
         f"minitaur_table.py: error: {tmp_path}/r/seed0 has no evaluations.npz; not a finished run"
     ]
@@ -295,7 +295,9 @@ def test_a_page_that_disagrees_with_its_runs_is_found_and_rewritten(table, tmp_p
 def test_a_row_needs_label_and_folders(tmp_path):
     refused = run_script("benchmarks/minitaur_table.py", "--row", "no-glob", cwd=tmp_path)
     assert refused.returncode == 2
-    assert error_lines(refused)[-1].endswith("--row expects LABEL=GLOB, got 'no-glob'")
+    assert error_lines(refused) == [
+        "minitaur_table.py: error: --row expects LABEL=GLOB, got 'no-glob' (see --help)"
+    ]
 
 
 def test_how_far_a_run_falls_back_after_first_reaching_a_return():
@@ -366,7 +368,7 @@ def test_a_live_actor_row_judges_the_run_without_its_average(tmp_path, finished_
         *args,
         cwd=tmp_path,
     )
-    assert refused.returncode == 1
+    assert refused.returncode == 2
     assert error_lines(refused)[-1].endswith("has no averaged actor (actor_ema) to leave out")
 
 
