@@ -142,10 +142,20 @@ def recorded_episodes(table: Path, label: str, seeds: range) -> tuple[str, list[
     if len(envs) > 1:
         raise UsageError(f"{table} holds {label!r} on more than one env: {sorted(envs)}")
     skipped = {"policy", "env", "episode_seed"}
-    records = [
-        {name: float(value) for name, value in row.items() if name not in skipped and value}
-        for row in mine
-    ]
+    records = []
+    for row in mine:
+        record = {}
+        for name, value in row.items():
+            if name in skipped or not value:
+                continue
+            try:
+                record[name] = float(value)
+            except ValueError:
+                raise UsageError(
+                    f"{table}: {label!r} episode {row['episode_seed']} has {name} {value!r}, "
+                    "not a number"
+                ) from None
+        records.append(record)
     return envs.pop(), records
 
 

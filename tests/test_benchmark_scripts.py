@@ -577,6 +577,16 @@ def test_falls_by_draw_plays_evaluate_pys_episodes_and_gives_each_policy_the_sam
         "holds 'base' on seeds 20001..20001 (1 episodes), not the 20000..20001 asked"
         in (error_lines(other_seeds)[0])
     )
+    garbled = tmp_path / "garbled.csv"
+    garbled.write_text(table.read_text().replace(f",20001,{base['return']},", ",20001,abc,"))
+    unreadable = run_script(
+        "benchmarks/falls_by_draw.py",
+        *("--policy", f"base={garbled}", "--episodes", "1", "--seed", "20001"),
+        cwd=tmp_path,
+    )
+    assert unreadable.returncode == 2 and error_lines(unreadable) == [
+        f"falls_by_draw.py: error: {garbled}: 'base' episode 20001 has return 'abc', not a number"
+    ]
     elsewhere = tmp_path / "elsewhere.csv"
     elsewhere.write_text(
         table.read_text().replace(",MinitaurBulletTrotRandomized-v0,", ",Other-v0,")
