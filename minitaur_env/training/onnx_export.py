@@ -91,7 +91,9 @@ class DeterministicActor(nn.Module):
         elif self.head == "deterministic":  # TD3: the actor ends in tanh
             action = self.policy.actor(x)
         else:  # PPO, A2C: the Gaussian mean
-            features = self.policy.extract_features(x, self.policy.pi_features_extractor)
+            # The actor's own extractor: with share_features_extractor=False, SB3's
+            # extract_features returns both the actor's and the critic's features.
+            features = self.policy.pi_features_extractor(x)
             mean = self.policy.action_net(self.policy.mlp_extractor.forward_actor(features))
             action = torch.tanh(mean) if self.policy.squash_output else mean
         if self.squashed:
