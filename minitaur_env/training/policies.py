@@ -5,7 +5,7 @@ last ``len(CONDITION_NAMES)`` observation entries, the episode's drawn condition
 ``privileged=True`` appends (``minitaur_env.conditions``), and whose critic sees every
 entry: an asymmetric actor-critic (Pinto et al. 2018). The actor's input has those
 entries set to 0, so its layers keep their shapes and its exported graph takes the
-env's whole observation; whatever stands there, the action is the same.
+env's whole observation; whatever finite numbers stand there, the action is the same.
 
 The SAC stabilizers the SAC ablation measures (docs/results.md, "Stabilizing SAC"):
 
