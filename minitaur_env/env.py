@@ -377,11 +377,6 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._robot
 
     @property
-    def episode_realism(self) -> EpisodeRealism:
-        """This episode's control step, latencies and IMU errors, drawn or fixed."""
-        return self._episode
-
-    @property
     def push_scale(self) -> float:
         """The factor on every push's force, 1 for the ``pushes`` setting as given."""
         return self._push_scale

@@ -23,8 +23,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
-from minitaur_env.checks import boolean, checked_action, from_mapping, integer, number
-from minitaur_env.conditions import EpisodeConditions
+from minitaur_env.checks import checked_action, from_mapping, integer, number
 from minitaur_env.env import MinitaurBulletEnv
 from minitaur_env.robot import NUM_MOTORS
 
@@ -144,7 +143,6 @@ def make_trotting_env(
     render_mode: str | None = None,
     gait: Trot | Mapping[str, Any] | None = None,
     history: int = 1,
-    privileged: bool = False,
     **kwargs: Any,
 ) -> gym.Env:
     """``MinitaurBulletEnv(render_mode, **kwargs)`` driven through a :class:`TrottingGait`.
@@ -153,18 +151,11 @@ def make_trotting_env(
     flattened into one vector (the first observation repeated at reset). Under latency
     and pushes a single observation says where the body is but not where it is going; the
     classic observation has no base velocity.
-
-    ``privileged``: the episode's drawn conditions follow, once
-    (:class:`~minitaur_env.conditions.EpisodeConditions`), for a critic that sees them
-    while the actor does not (``PrivilegedCriticPolicy``).
     """
     history = integer("history", history, 1, MAX_HISTORY)
-    privileged = boolean("privileged", privileged)
     env: gym.Env = TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait)
     if history > 1:
         env = FlattenObservation(FrameStackObservation(env, history))
-    if privileged:
-        env = EpisodeConditions(env)
     return env
 
 

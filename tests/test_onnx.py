@@ -90,6 +90,18 @@ def test_a_run_folder_exports_its_final_model(tmp_path):
     [
         ("TD3", {}),
         ("A2C", {}),
+        # Actor and critic with their own extractors: SB3's extract_features gives a pair.
+        # Without orthogonal init, whose 0.01 gain on the action layer leaves means ~0.
+        (
+            "PPO",
+            {
+                "policy_kwargs": {
+                    "net_arch": [32],
+                    "share_features_extractor": False,
+                    "ortho_init": False,
+                }
+            },
+        ),
         ("CrossQ", {"policy_kwargs": {"net_arch": [32, 32]}}),
         (
             "SAC",

@@ -70,8 +70,6 @@ def resolve_policy(
         return name
     if backend == "sb3":
         return POLICIES[algo][name]
-    if algo != "sac":
-        raise UsageError(f"policy {name} is PyTorch's: it needs --backend sb3")
     torch_only = sorted(set(policy_kwargs or {}) & TORCH_ONLY_KEYS)
     if torch_only:
         raise UsageError(
@@ -116,13 +114,9 @@ def infer_algo(path: Path) -> tuple[str, str]:
     for name in ALGORITHM_NAMES:
         if f".{name}." in module or module.endswith(f".{name}"):
             return name, backend
-    if module == SBX_POLICY_MODULE:
-        return "sac", backend
-    # PPO and A2C share SB3's common ActorCriticPolicy (and PrivilegedCriticPolicy, its
-    # subclass here); only PPO clips. This package's other policies are SAC's, whose
-    # models alone have a replay buffer.
-    if module == policies.__name__ and "buffer_size" in data:
-        return "sac", backend
-    if module.endswith("common.policies") or module == policies.__name__:
+    if module in (policies.__name__, SBX_POLICY_MODULE) and len(policies.POLICIES) == 1:
+        return next(iter(policies.POLICIES)), backend
+    # PPO and A2C share SB3's common ActorCriticPolicy; only PPO clips.
+    if module.endswith("common.policies"):
         return ("ppo" if "clip_range" in data else "a2c"), backend
     raise UsageError(f"cannot tell the algorithm of {path} ({module!r}); pass --algo")

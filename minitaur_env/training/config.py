@@ -8,14 +8,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from minitaur_env.conditions import PRIVILEGED_POLICY_NAME, EpisodeConditions
 from minitaur_env.training import VEC_ENVS, UsageError
-from minitaur_env.training.algorithms import (
-    OFF_POLICY,
-    algorithm_class,
-    infer_algo,
-    resolve_policy,
-)
+from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, infer_algo
 from minitaur_env.training.hyperparams import (
     HARD_DRAWS_KEY,
     RUN_KEYS,
@@ -155,9 +149,6 @@ class ExperimentConfig:
         draws = hard_draws(self.hyperparams, self.n_envs)
         if draws is not None:
             self._check_hard_draws(draws[1])
-        if self.policy == PRIVILEGED_POLICY_NAME:
-            resolve_policy(self.algo, self.policy, self.backend)
-            self._check_privileged_env()
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
 
@@ -168,22 +159,6 @@ class ExperimentConfig:
             env.unwrapped.narrow_realism(realism)
         except (AttributeError, ValueError) as error:
             raise UsageError(f"{HARD_DRAWS_KEY}: {error}") from error
-        finally:
-            env.close()
-
-    def _check_privileged_env(self) -> None:
-        """The policy hides the observation's last entries from the actor: they must be
-        the episode's conditions, not the env's own observations."""
-        env = make_env(self.env, self.env_kwargs)
-        try:
-            layer: Any = env
-            while layer is not None and not isinstance(layer, EpisodeConditions):
-                layer = getattr(layer, "env", None)
-            if layer is None or layer.observation_space.shape != env.observation_space.shape:
-                raise UsageError(
-                    f"policy {PRIVILEGED_POLICY_NAME} needs an env whose observation ends with "
-                    f"the episode's conditions: --env-kwargs privileged=true (a trotting env)"
-                )
         finally:
             env.close()
 

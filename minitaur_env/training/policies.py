@@ -1,13 +1,4 @@
-"""This package's policies: SAC's stabilizers, and PPO's critic that sees the episode's draws.
-
-``PrivilegedCriticPolicy`` is SB3's ``ActorCriticPolicy`` whose actor does not see the
-last ``len(CONDITION_NAMES)`` observation entries, the episode's drawn conditions that
-``privileged=True`` appends (``minitaur_env.conditions``), and whose critic sees every
-entry: an asymmetric actor-critic (Pinto et al. 2018). The actor's input has those
-entries set to 0, so its layers keep their shapes and its exported graph takes the
-env's whole observation; whatever finite numbers stand there, the action is the same.
-
-The SAC stabilizers the SAC ablation measures (docs/results.md, "Stabilizing SAC"):
+"""SAC policies with the stabilizers the SAC ablation measures (docs/results.md, "Stabilizing SAC").
 
 ``StabilizedMlpPolicy`` is SB3's ``SACPolicy`` with six opt-in changes, each a policy
 keyword so that SB3's own ``SAC`` class trains it unchanged:
@@ -49,17 +40,11 @@ from typing import Any
 
 import torch
 from pink import ColoredNoiseProcess
-from stable_baselines3.common.policies import ActorCriticPolicy, ContinuousCritic
-from stable_baselines3.common.preprocessing import get_flattened_obs_dim
-from stable_baselines3.common.torch_layers import (
-    BaseFeaturesExtractor,
-    FlattenExtractor,
-    create_mlp,
-)
+from stable_baselines3.common.policies import ContinuousCritic
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
 from stable_baselines3.sac.policies import Actor, SACPolicy
 from torch import nn
 
-from minitaur_env.conditions import CONDITION_NAMES, PRIVILEGED_POLICY_NAME
 from minitaur_env.training.noise import checked_noise_color, colored_noise_process
 
 POLICY_NAME = "StabilizedMlpPolicy"
@@ -249,47 +234,7 @@ class StabilizedSACPolicy(SACPolicy):
         return data
 
 
-class ActorView(BaseFeaturesExtractor):
-    """The flattened observation with its last ``hidden_entries`` entries set to 0."""
-
-    def __init__(self, observation_space: Any, hidden_entries: int) -> None:
-        size = get_flattened_obs_dim(observation_space)
-        if not 0 < hidden_entries < size:
-            raise ValueError(
-                f"{PRIVILEGED_POLICY_NAME} hides the last {hidden_entries} of the observation's "
-                f"{size} entries; the env needs privileged=True"
-            )
-        super().__init__(observation_space, size)
-        visible = torch.ones(size)
-        visible[size - hidden_entries :] = 0.0
-        self.register_buffer("visible", visible)
-        self.flatten = nn.Flatten()
-
-    def forward(self, observations: torch.Tensor) -> torch.Tensor:
-        return self.flatten(observations) * self.visible
-
-
-class PrivilegedCriticPolicy(ActorCriticPolicy):
-    """PPO's and A2C's policy whose actor does not see the episode's conditions (the last
-    ``len(CONDITION_NAMES)`` observation entries) and whose critic does."""
-
-    def __init__(
-        self, observation_space: Any, action_space: Any, *args: Any, **kwargs: Any
-    ) -> None:
-        kwargs["features_extractor_class"] = ActorView
-        kwargs["features_extractor_kwargs"] = {"hidden_entries": len(CONDITION_NAMES)}
-        kwargs["share_features_extractor"] = False
-        super().__init__(observation_space, action_space, *args, **kwargs)
-        # SB3 builds both extractors alike; the critic's sees everything. Neither has
-        # weights, so the optimizer built above is unchanged.
-        self.vf_features_extractor = FlattenExtractor(observation_space)
-
-
 # Policy names a hyperparameter entry may give besides SB3's own, per algorithm.
-POLICIES: dict[str, dict[str, type]] = {
-    "sac": {POLICY_NAME: StabilizedSACPolicy},
-    "ppo": {PRIVILEGED_POLICY_NAME: PrivilegedCriticPolicy},
-    "a2c": {PRIVILEGED_POLICY_NAME: PrivilegedCriticPolicy},
-}
+POLICIES: dict[str, dict[str, type]] = {"sac": {POLICY_NAME: StabilizedSACPolicy}}
 # StabilizedSACPolicy's keys that hook into PyTorch and have no SBX counterpart here.
 TORCH_ONLY_KEYS = {"critic_layer_norm", "max_grad_norm", "actor_ema", "noise_hold", "action_gain"}
