@@ -73,9 +73,12 @@ def keep(
     if not curves_only:
         shutil.copytree(run.zoo_dir, kept.zoo_dir)
     shutil.copytree(run.monitor_dir, kept.monitor_dir)
-    trial = run.path.parents[1] / TRIAL_FILE  # <trial>/<algo>/<env>_N
-    if trial.is_file():
-        shutil.copy2(trial, kept.path / trial.name)
+    # A sweep run's record lies in <trial>/<algo>/<env>_N's trial folder; a kept run that
+    # was resumed from a copy carries it inside.
+    for trial in (run.path.parents[1] / TRIAL_FILE, run.path / TRIAL_FILE):
+        if trial.is_file():
+            shutil.copy2(trial, kept.path / trial.name)
+            break
     for source in resumed_from:
         target = kept.path / source.relative_to(run.path)
         target.parent.mkdir(parents=True, exist_ok=True)

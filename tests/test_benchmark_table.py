@@ -517,6 +517,12 @@ def test_keep_runs_resumable_keeps_what_a_resume_needs_and_it_goes_on(finished_r
     assert "(from 160)" in resumed.stdout
     with np.load(clone / "evaluations.npz") as logged:
         assert logged["timesteps"].tolist() == [80, 160, 240]
+    # Kept again, the resumed copy keeps the sweep's record it carries inside.
+    (clone / "trial.yml").write_text("group: default\nseed: 3\n")
+    keep_runs(clone, tmp_path / "kept-again", "--curves-only")
+    assert (
+        tmp_path / "kept-again" / "seed3" / "trial.yml"
+    ).read_text() == "group: default\nseed: 3\n"
     shutil.rmtree(stopped / "checkpoints")  # control: nothing to resume from, refused
     with pytest.raises(SystemExit, match="has no checkpoint to resume from"):
         keep_runs(stopped, tmp_path / "again", "--resumable")
