@@ -621,7 +621,7 @@ def test_evaluations_normalize_observations_with_the_training_statistics(tmp_pat
 
 
 def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
-    from minitaur_env.training.hyperparams import load_hyperparams
+    from minitaur_env.training.hyperparams import hard_draws, load_hyperparams
 
     tuned = load_hyperparams("sac", "MinitaurBulletEnv-v0")
     tutorial = load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="tutorial")
@@ -651,6 +651,13 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     decay = load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-history-decay")
     assert decay == {**history, "n_timesteps": 1_000_000, "learning_rate": "lin_2.5e-4"}
     assert load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0") == decay
+    # The recipe under test is the decaying one with 2 of its 8 envs near the classic end.
+    classic_end = load_hyperparams(
+        "ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-classic-draws"
+    )
+    assert {k: v for k, v in classic_end.items() if k != "hard_draws"} == decay
+    envs, realism = hard_draws(classic_end, classic_end["n_envs"])
+    assert (envs, realism["control_time_step"]) == (2, [0.008, 0.012])
 
 
 def test_runs_started_together_get_their_own_folders(tmp_path):
