@@ -23,6 +23,7 @@ import shutil
 import sys
 from pathlib import Path
 
+from minitaur_env.training.files import replaced_folder
 from minitaur_env.training.run_folder import RunFolder, normalizer_json
 from minitaur_env.training.trial import TRIAL_FILE
 
@@ -60,29 +61,30 @@ def keep(
         )
     if not run.evaluations.is_file():
         sys.exit(f"keep_runs.py: {run} has no {run.evaluations.name}: nothing to keep")
-    if destination.exists():
-        shutil.rmtree(destination)
-    destination.mkdir(parents=True)
-    files = [run.config, run.command, run.evaluations]
-    files += [
-        report for live in (False, True) if (report := run.final_model_report(live)).is_file()
-    ]
-    for source in files if curves_only else [*files, run.zoo_model]:
-        shutil.copy2(source, destination / source.name)
-    kept = RunFolder(destination)  # its env name comes from the copied config.yml
-    if not curves_only:
-        shutil.copytree(run.zoo_dir, kept.zoo_dir)
-    shutil.copytree(run.monitor_dir, kept.monitor_dir)
-    # A sweep run's record lies in <trial>/<algo>/<env>_N's trial folder; a kept run that
-    # was resumed from a copy carries it inside.
-    for trial in (run.path.parents[1] / TRIAL_FILE, run.path / TRIAL_FILE):
-        if trial.is_file():
-            shutil.copy2(trial, kept.path / trial.name)
-            break
-    for source in resumed_from:
-        target = kept.path / source.relative_to(run.path)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(source, target)
+    # Written aside and swapped in whole: a copy that fails part-way leaves the folder kept
+    # before as it was, and a kept run can be kept again into its own folder (a resumed
+    # run finishing where its resumable checkpoint was kept) without deleting its source.
+    with replaced_folder(destination) as staged:
+        files = [run.config, run.command, run.evaluations]
+        files += [
+            report for live in (False, True) if (report := run.final_model_report(live)).is_file()
+        ]
+        for source in files if curves_only else [*files, run.zoo_model]:
+            shutil.copy2(source, staged / source.name)
+        kept = RunFolder(staged)  # its env name comes from the copied config.yml
+        if not curves_only:
+            shutil.copytree(run.zoo_dir, kept.zoo_dir)
+        shutil.copytree(run.monitor_dir, kept.monitor_dir)
+        # A sweep run's record lies in <trial>/<algo>/<env>_N's trial folder; a kept run
+        # that was resumed from a copy carries it inside.
+        for trial in (run.path.parents[1] / TRIAL_FILE, run.path / TRIAL_FILE):
+            if trial.is_file():
+                shutil.copy2(trial, kept.path / trial.name)
+                break
+        for source in resumed_from:
+            target = kept.path / source.relative_to(run.path)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -150,6 +150,33 @@ def test_a_kept_runs_final_model_ships_with_its_curve_and_provenance(finished_ru
     assert yaml.safe_load(RunFolder(shipped).provenance.read_text())["eval_seeds"] == "777..777"
 
 
+def test_keeping_a_run_again_or_failing_part_way_loses_nothing_kept(
+    finished_run, tmp_path, monkeypatch
+):
+    def files(folder: Path) -> dict[Path, bytes]:
+        return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+    keep_runs(finished_run, tmp_path / "kept")
+    folder = tmp_path / "kept" / "seed3"
+    before = files(folder)
+    assert Path("MinitaurBulletEnv-v0.zip") in before
+    keep_runs(folder, tmp_path / "kept")  # a kept run kept again into its own folder
+    assert files(folder) == before
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(shutil, "copytree", full_disk)  # after the model is copied
+    with pytest.raises(OSError, match="No space left"):
+        keep_runs(finished_run, tmp_path / "kept")
+    assert files(folder) == before
+    assert [p.name for p in folder.parent.iterdir()] == ["seed3"]  # nothing left aside
+    monkeypatch.undo()  # control: the same keep, succeeding, replaces the folder whole
+    keep_runs(finished_run, tmp_path / "kept", "--curves-only")
+    assert Path("MinitaurBulletEnv-v0.zip") not in files(folder)
+    assert files(folder)[Path("evaluations.npz")] == before[Path("evaluations.npz")]
+
+
 def test_a_ship_that_fails_part_way_leaves_the_earlier_shipped_folder_whole(
     finished_run, tmp_path, monkeypatch
 ):
