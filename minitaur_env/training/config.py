@@ -18,7 +18,6 @@ from minitaur_env.training.hyperparams import (
     hard_draws,
     load_hyperparams,
     mirrored,
-    n_steps_after,
     noise_color_until,
     push_curriculum,
 )
@@ -144,7 +143,6 @@ class ExperimentConfig:
             )
         entropy_decay(self.hyperparams, self.algo, self.backend)
         noise_color_until(self.hyperparams)
-        n_steps_after(self.hyperparams, self.algo)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)
