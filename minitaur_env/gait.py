@@ -23,7 +23,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
-from minitaur_env.checks import boolean, checked_action, from_mapping, integer, number
+from minitaur_env.checks import checked_action, from_mapping, integer, number
 from minitaur_env.env import MinitaurBulletEnv
 from minitaur_env.robot import NUM_MOTORS
 
@@ -88,38 +88,28 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
 
     Action ``Box(-1, 1, (11,))``: entries 0-7 are residuals on the env's leg-model
     action (same order), 8-10 modulate the frequency, the extension and the swing
-    amplitude. Observation: the env's, then ``sin`` and ``cos`` of the generator's phase,
-    then, with ``previous_action``, the policy's last action clipped to [-1, 1] (zeros
-    after a reset). ``info`` gains ``gait_phase`` (rad) and ``gait_frequency`` (Hz).
+    amplitude. Observation: the env's, then ``sin`` and ``cos`` of the generator's phase.
+    ``info`` gains ``gait_phase`` (rad) and ``gait_frequency`` (Hz).
     """
 
-    def __init__(
-        self,
-        env: gym.Env,
-        trot: Trot | Mapping[str, Any] | None = None,
-        previous_action: bool = False,
-    ) -> None:
+    def __init__(self, env: gym.Env, trot: Trot | Mapping[str, Any] | None = None) -> None:
         super().__init__(env)
         self.trot = Trot.coerce(trot)
-        self.previous_action = boolean("previous_action", previous_action)
         self.action_space = spaces.Box(-1.0, 1.0, (NUM_MOTORS + MODULATION_ENTRIES,), np.float32)
         inner = env.observation_space
         assert isinstance(inner, spaces.Box)
-        added = 2 + (self.action_space.shape[0] if self.previous_action else 0)
         self.observation_space = spaces.Box(
-            np.concatenate([inner.low, -np.ones(added)]).astype(np.float32),
-            np.concatenate([inner.high, np.ones(added)]).astype(np.float32),
+            np.concatenate([inner.low, [-1.0, -1.0]]).astype(np.float32),
+            np.concatenate([inner.high, [1.0, 1.0]]).astype(np.float32),
             dtype=np.float32,
         )
         self._phase = 0.0
-        self._last_action = np.zeros(self.action_space.shape, np.float32)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         observation, info = self.env.reset(seed=seed, options=options)
         self._phase = 0.0
-        self._last_action[:] = 0.0
         return self._observe(observation), info
 
     def step(
@@ -127,7 +117,6 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         leg_action, frequency = self.leg_action(action)
         observation, reward, terminated, truncated, info = self.env.step(leg_action)
-        self._last_action[:] = np.clip(action, -1.0, 1.0)
         info["gait_phase"] = self._phase
         info["gait_frequency"] = frequency
         # The control step may be drawn per episode (randomized dynamics): read it each step.
@@ -147,15 +136,13 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
 
     def _observe(self, observation: np.ndarray) -> np.ndarray:
         phase = np.array([math.sin(self._phase), math.cos(self._phase)], np.float32)
-        parts = [observation, phase] + ([self._last_action] if self.previous_action else [])
-        return np.concatenate(parts).astype(np.float32)
+        return np.concatenate([observation, phase]).astype(np.float32)
 
 
 def make_trotting_env(
     render_mode: str | None = None,
     gait: Trot | Mapping[str, Any] | None = None,
     history: int = 1,
-    previous_action: bool = False,
     **kwargs: Any,
 ) -> gym.Env:
     """``MinitaurBulletEnv(render_mode, **kwargs)`` driven through a :class:`TrottingGait`.
@@ -163,12 +150,10 @@ def make_trotting_env(
     ``history`` (1 to 16): the policy sees the last ``history`` observations, newest last,
     flattened into one vector (the first observation repeated at reset). Under latency
     and pushes a single observation says where the body is but not where it is going; the
-    classic observation has no base velocity. ``previous_action``: each observation also
-    holds the policy's last action, since under latency the sensors predate the actions
-    already sent.
+    classic observation has no base velocity.
     """
     history = integer("history", history, 1, MAX_HISTORY)
-    env: gym.Env = TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait, previous_action)
+    env: gym.Env = TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait)
     if history > 1:
         env = FlattenObservation(FrameStackObservation(env, history))
     return env

@@ -222,29 +222,6 @@ def test_history_shows_the_last_observations_newest_last():
         gym.make("MinitaurBulletTrot-v0", history=0)
 
 
-def test_previous_action_shows_the_last_action_after_the_observation():
-    plain = gym.make("MinitaurBulletTrotRandomized-v0")
-    with_action = gym.make("MinitaurBulletTrotRandomized-v0", previous_action=True, history=2)
-    assert with_action.observation_space.shape == (2 * (30 + 11),)
-    rng = np.random.default_rng(2)
-    first, _ = with_action.reset(seed=5)
-    plain_first, _ = plain.reset(seed=5)
-    np.testing.assert_array_equal(first[41:71], plain_first)  # the env's and the phase, unchanged
-    np.testing.assert_array_equal(first[71:], np.zeros(11))  # no action yet
-    actions = [rng.uniform(-1, 1, 11) for _ in range(3)]
-    for before, action in zip([np.zeros(11), *actions], actions, strict=False):
-        observation = with_action.step(action)[0]
-        np.testing.assert_allclose(observation[71:], action, rtol=1e-6)  # newest: this action
-        np.testing.assert_allclose(observation[30:41], before, rtol=1e-6)  # and the one before
-        np.testing.assert_array_equal(observation[41:71], plain.step(action)[0])
-    again, _ = with_action.reset(seed=5)
-    np.testing.assert_array_equal(again, first)  # a reset forgets the last episode's action
-    plain.close()
-    with_action.close()
-    with pytest.raises(ValueError, match=r"^previous_action must be True or False, got 'yes'"):
-        gym.make("MinitaurBulletTrot-v0", previous_action="yes")
-
-
 def test_the_gait_prior_is_read_from_the_env_spec_not_the_id():
     from minitaur_env.gait import has_gait_prior
 
