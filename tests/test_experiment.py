@@ -598,14 +598,50 @@ def test_hard_draws_narrow_the_first_training_envs_only_and_again_after_a_resume
     assert min(steps[0] for steps in second.steps[20:]) >= 0.016 - 1e-9
 
 
+def test_hard_draws_groups_narrow_their_own_envs(tmp_path):
+    # Two groups on consecutive envs, each inside the env's own ranges (the second's is
+    # not inside the first's: each narrows the env's own), the last env on the preset.
+    groups = [
+        {"envs": 1, "realism": {"control_time_step": [0.016, 0.02]}},
+        {"envs": 1, "realism": {"control_time_step": [0.008, 0.012]}},
+    ]
+    seen = RecordsControlSteps()
+    pendulum(
+        tmp_path / "groups",
+        env="MinitaurBulletRandomized-v0",
+        n_envs=3,
+        n_timesteps=300,
+        env_kwargs={"max_episode_steps": 10},
+        hyperparams={"hard_draws": groups},
+        callbacks=[seen],
+    ).run()
+    later = seen.steps[20:]  # past each env's first (unnarrowed) episode
+    assert min(steps[0] for steps in later) >= 0.016 - 1e-9
+    assert all(0.008 - 1e-9 <= steps[1] <= 0.012 + 1e-9 for steps in later)
+    own = [steps[2] for steps in seen.steps]
+    assert min(own) < 0.008 and max(own) > 0.012  # the third env keeps the preset's 3-20 ms
+
+
 @pytest.mark.parametrize(
     ("draws", "message"),
     [
         ({"envs": 1}, "hard_draws: expected {envs: <how many training envs>"),
         (
             {"envs": 2, "realism": {"control_latency": [0.02, 0.04]}},
-            "envs must be a whole number in 1..1",
+            "hard_draws narrows 2 training envs; at most 1 (n_envs is 2",
         ),
+        (
+            [{"envs": 1, "realism": {"control_latency": [0.02, 0.04]}}, {"envs": 1}],
+            "hard_draws[1]: expected {envs: <how many training envs>",
+        ),
+        (
+            [
+                {"envs": 1, "realism": {"control_latency": [0.02, 0.04]}},
+                {"envs": 1, "realism": {"control_latency": [0.0, 0.01]}},
+            ],
+            "hard_draws narrows 2 training envs; at most 1",
+        ),
+        ({"envs": 0, "realism": {"control_latency": [0.02, 0.04]}}, "hard_draws.envs must be"),
         (
             {"envs": 1, "realism": {"control_latency": [0.02, 0.06]}},
             "is not inside the env's own (0.0, 0.04)",

@@ -134,18 +134,19 @@ class WhiteNoiseFrom(_StepSchedule):
 
 
 class HardDraws(BaseCallback):
-    """The first ``envs`` training envs draw ``realism``'s fields from its narrower ranges
+    """Each group's training envs draw its realism fields from its narrower ranges
     (``MinitaurBulletEnv.narrow_realism``), set when training starts or resumes; the other
     training envs and the evaluations keep the env's own. SB3 resets the envs before the
     first callback, so each narrowed env's first episode after a start or resume is still
     drawn from the env's own ranges."""
 
-    def __init__(self, envs: int, realism: dict[str, Any]) -> None:
+    def __init__(self, groups: list[tuple[range, dict[str, Any]]]) -> None:
         super().__init__()
-        self.envs, self.realism = envs, realism
+        self.groups = groups
 
     def _on_training_start(self) -> None:
-        self.training_env.env_method("narrow_realism", self.realism, indices=range(self.envs))
+        for envs, realism in self.groups:
+            self.training_env.env_method("narrow_realism", realism, indices=envs)
 
     def _on_step(self) -> bool:
         return True
@@ -163,9 +164,9 @@ def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     if curriculum is not None:
         start, full_at = curriculum
         callbacks.append(PushCurriculum(start, int(full_at * steps)))
-    draws = hard_draws(config.hyperparams, config.n_envs)
-    if draws is not None:
-        callbacks.append(HardDraws(*draws))
+    groups = hard_draws(config.hyperparams, config.n_envs)
+    if groups is not None:
+        callbacks.append(HardDraws(groups))
     until = noise_color_until(config.hyperparams)
     if until is not None:
         callbacks.append(WhiteNoiseFrom(int(until * steps)))

@@ -146,17 +146,20 @@ class ExperimentConfig:
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)
-        draws = hard_draws(self.hyperparams, self.n_envs)
-        if draws is not None:
-            self._check_hard_draws(draws[1])
+        groups = hard_draws(self.hyperparams, self.n_envs)
+        if groups is not None:
+            self._check_hard_draws([realism for _, realism in groups])
         if self.trained_agent:
             self._check_trained_agent(Path(self.trained_agent))
 
-    def _check_hard_draws(self, realism: dict[str, Any]) -> None:
+    def _check_hard_draws(self, groups: list[dict[str, Any]]) -> None:
         """The env refuses ranges outside its own; ask one env now, not every worker later."""
         env = make_env(self.env, self.env_kwargs)
+        own = getattr(env.unwrapped, "realism", None)
         try:
-            env.unwrapped.narrow_realism(realism)
+            for realism in groups:
+                env.unwrapped.narrow_realism(realism)
+                env.unwrapped.realism = own  # each group narrows the env's own ranges
         except (AttributeError, ValueError) as error:
             raise UsageError(f"{HARD_DRAWS_KEY}: {error}") from error
         finally:

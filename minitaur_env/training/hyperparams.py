@@ -198,24 +198,38 @@ def push_curriculum(hyperparams: dict[str, Any], env_pushes: Any) -> tuple[float
     return float(start), float(full_at)
 
 
-def hard_draws(hyperparams: dict[str, Any], n_envs: int) -> tuple[int, dict[str, Any]] | None:
-    """``(envs, realism fields)`` of a ``hard_draws`` entry, or None without one. Whether
-    the ranges lie inside the env's own is the env's check (``narrow_realism``)."""
+def hard_draws(
+    hyperparams: dict[str, Any], n_envs: int
+) -> list[tuple[range, dict[str, Any]]] | None:
+    """The training envs each group of a ``hard_draws`` entry narrows, with its realism
+    fields, or None without one. One group is a mapping; several are a list of them, on
+    consecutive envs from the first. Whether the ranges lie inside the env's own is the
+    env's check (``narrow_realism``)."""
     entry = hyperparams.get(HARD_DRAWS_KEY)
     if entry is None:
         return None
-    expected = "{envs: <how many training envs>, realism: {<field>: [low, high], ...}}"
-    if not isinstance(entry, dict) or set(entry) != {"envs", "realism"}:
-        raise UsageError(f"{HARD_DRAWS_KEY}: expected {expected}, got {entry!r}")
-    envs, realism = entry["envs"], entry["realism"]
-    if isinstance(envs, bool) or not isinstance(envs, int) or not 1 <= envs < n_envs:
+    expected = (
+        "{envs: <how many training envs>, realism: {<field>: [low, high], ...}}, or a list of them"
+    )
+    entries = entry if isinstance(entry, list) and entry else [entry]
+    groups, first = [], 0
+    for index, group in enumerate(entries):
+        where = HARD_DRAWS_KEY if len(entries) == 1 else f"{HARD_DRAWS_KEY}[{index}]"
+        if not isinstance(group, dict) or set(group) != {"envs", "realism"}:
+            raise UsageError(f"{where}: expected {expected}, got {group!r}")
+        envs, realism = group["envs"], group["realism"]
+        if isinstance(envs, bool) or not isinstance(envs, int) or envs < 1:
+            raise UsageError(f"{where}.envs must be a whole number from 1, got {envs!r}")
+        if not isinstance(realism, dict) or not realism:
+            raise UsageError(f"{where}.realism: expected a mapping of fields, got {realism!r}")
+        groups.append((range(first, first + envs), realism))
+        first += envs
+    if first >= n_envs:
         raise UsageError(
-            f"{HARD_DRAWS_KEY}.envs must be a whole number in 1..{n_envs - 1} (n_envs is "
-            f"{n_envs}: some training envs keep the env's own ranges), got {envs!r}"
+            f"{HARD_DRAWS_KEY} narrows {first} training envs; at most {n_envs - 1} (n_envs is "
+            f"{n_envs}: some training envs keep the env's own ranges)"
         )
-    if not isinstance(realism, dict) or not realism:
-        raise UsageError(f"{HARD_DRAWS_KEY}.realism: expected a mapping of fields, got {realism!r}")
-    return envs, realism
+    return groups
 
 
 def noise_color_until(hyperparams: dict[str, Any]) -> float | None:
