@@ -658,6 +658,12 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     assert {k: v for k, v in classic_end.items() if k != "hard_draws"} == decay
     [(envs, realism)] = hard_draws(classic_end, classic_end["n_envs"])
     assert (envs, realism["control_time_step"]) == (range(2), [0.008, 0.012])
+    # Its successor under test adds 2 envs at the hard corner after the classic end's 2.
+    both = load_hyperparams("ppo", "MinitaurBulletTrotRandomized-v0", entry="trot-hard-classic")
+    assert {k: v for k, v in both.items() if k != "hard_draws"} == decay
+    [(classic_envs, classic), (hard_envs, hard)] = hard_draws(both, both["n_envs"])
+    assert (classic_envs, classic) == (envs, realism)
+    assert (hard_envs, hard["control_latency"]) == (range(2, 4), [0.02, 0.04])
 
 
 def test_runs_started_together_get_their_own_folders(tmp_path):
