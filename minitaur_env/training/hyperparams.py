@@ -153,10 +153,10 @@ def entropy_decay(
     if decay is None:
         return None
     prefix = ENTROPY_DECAY_KEY
-    if algo not in ENTROPY_ALGOS or backend != "sb3":
-        raise UsageError(
-            f"{prefix}: only for --backend sb3 {', '.join(ENTROPY_ALGOS)}, not {backend} {algo}"
-        )
+    # Both backends read model.target_entropy at every update (SBX passes it to its
+    # compiled step as a traced value, so a new value needs no recompiling).
+    if algo not in ENTROPY_ALGOS:
+        raise UsageError(f"{prefix}: only for {', '.join(ENTROPY_ALGOS)}, not {algo}")
     if not isinstance(decay, dict) or set(decay) - {"final", "start"} or "final" not in decay:
         expected = "{final: <number>, start: <fraction>}"
         raise UsageError(f"{prefix}: expected {expected}, got {decay!r}")
