@@ -156,7 +156,7 @@ def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     """The callbacks that change a setting as training goes, from the config's entry."""
     callbacks: list[BaseCallback] = []
     steps = config.n_timesteps
-    decay = entropy_decay(config.hyperparams, config.algo, config.backend)
+    decay = entropy_decay(config.hyperparams, config.algo)
     if decay is not None:
         initial, final, start = decay
         callbacks.append(TargetEntropyDecay(initial, final, int(start * steps), steps))

@@ -141,7 +141,7 @@ class ExperimentConfig:
                 f"mirror: {self.algo} has no replay buffer to store mirror images in; "
                 f"it is for {', '.join(sorted(OFF_POLICY))}"
             )
-        entropy_decay(self.hyperparams, self.algo, self.backend)
+        entropy_decay(self.hyperparams, self.algo)
         noise_color_until(self.hyperparams)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)

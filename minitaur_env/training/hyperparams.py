@@ -141,9 +141,7 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
     return kwargs
 
 
-def entropy_decay(
-    hyperparams: dict[str, Any], algo: str, backend: str
-) -> tuple[float, float, float] | None:
+def entropy_decay(hyperparams: dict[str, Any], algo: str) -> tuple[float, float, float] | None:
     """``(initial, final, start)`` of a ``target_entropy_decay`` entry, or None without one.
 
     The initial target must be a number in the entry itself: a resumed model holds the
