@@ -737,19 +737,19 @@ def test_a_push_curriculum_finds_the_pushes_in_realism_or_the_old_keyword(env_kw
 
 
 @pytest.mark.parametrize(
-    ("algo", "backend", "hyperparams", "message"),
+    ("algo", "hyperparams", "message"),
     [
-        ("ppo", "sb3", {}, "only for sac, tqc, crossq, not ppo"),
-        ("sac", "sb3", {"ent_coef": 0.1}, "needs ent_coef: auto"),
-        ("sac", "sb3", {"target_entropy": "auto"}, "target_entropy must be a number, got 'auto'"),
-        ("sac", "sb3", {"target_entropy_decay": {"final": -4, "start": 1}}, "start must be a"),
-        ("sac", "sb3", {"target_entropy_decay": {"to": -4}}, "expected {final: <number>, start"),
+        ("ppo", {}, "only for sac, tqc, crossq, not ppo"),
+        ("sac", {"ent_coef": 0.1}, "needs ent_coef: auto"),
+        ("sac", {"target_entropy": "auto"}, "target_entropy must be a number, got 'auto'"),
+        ("sac", {"target_entropy_decay": {"final": -4, "start": 1}}, "start must be a"),
+        ("sac", {"target_entropy_decay": {"to": -4}}, "expected {final: <number>, start"),
     ],
 )
-def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, backend, hyperparams, message):
+def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, hyperparams, message):
     settings = {"target_entropy": 0, "target_entropy_decay": {"final": -4}, **hyperparams}
     with pytest.raises(UsageError, match=re.escape(message)):
-        ExperimentConfig.resolve(algo, "Pendulum-v1", hyperparams=settings, backend=backend)
+        ExperimentConfig.resolve(algo, "Pendulum-v1", hyperparams=settings)
 
 
 @pytest.mark.parametrize(
