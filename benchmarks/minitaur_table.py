@@ -231,6 +231,13 @@ def most_falls_in_the_second_half(run: RunFolder) -> str:
     return f"{int(late.max())} of {episodes}" if len(late) else ""
 
 
+def stored_final_model(run: RunFolder) -> str:
+    """The final model's stored result on the 20 report episodes, mean (falls): what
+    ended a run beside how it got there. Plays no episodes (``--check-docs`` runs it)."""
+    report = final_report(run, 20, REPORT_SEED, rejudge=False, stored_only=True)
+    return "" if report is None else f"{report['mean']:.2f} ({report['falls']})"
+
+
 def curve_cells(
     curves: list[RunCurve], table: dict, runs: list[RunFolder], medians: bool
 ) -> list[str]:
@@ -261,6 +268,8 @@ def curve_cells(
             cells.append("" if medians else falls_in_each_evaluation(runs[0]))
         elif column == "most falls in an evaluation, second half":
             cells.append("" if medians else most_falls_in_the_second_half(runs[0]))
+        elif column == "final model":
+            cells.append("" if medians else stored_final_model(runs[0]))
         else:
             raise UsageError(f"tables.yml: no column {column!r} in a curves table")
     return cells
@@ -366,22 +375,29 @@ def marked(name: str) -> tuple[str, str]:
 
 def docs_tables(args: argparse.Namespace, root: Path, write: bool) -> list[str]:
     """Each table of tables.yml against its page under ``root``: rewritten there when
-    ``write``, else the tables whose page differs."""
+    ``write``, else the tables whose page differs. Every table is rendered before any page
+    is written, so a refusal leaves every page as it was."""
     differing = []
+    pages: dict[Path, str] = {}
     for name, table in TABLES.items():
         page = root / table["page"]
-        text = page.read_text()
+        text = pages.setdefault(page, page.read_text())
         begin, end = marked(name)
         if text.count(begin) != 1 or text.count(end) < 1:
             raise UsageError(f"{table['page']} has no {begin} ... {end} for table {name!r}")
         head, rest = text.split(begin)
         old, tail = rest.split(end, 1)
+        if "<!-- table: " in old:  # its end is missing: the next table's would be taken
+            raise UsageError(f"{table['page']}: {begin} has no {end} before the next table")
         new = "\n" + render_table(name, args) + "\n"
         if new != old:
             differing.append(f"{name} ({table['page']})")
-            if write:
+            pages[page] = head + begin + new + end + tail
+    if write:
+        for page, text in pages.items():
+            if text != page.read_text():
                 with atomic_path(page) as temp:
-                    temp.write_text(head + begin + new + end + tail)
+                    temp.write_text(text)
     return differing
 
 

@@ -317,6 +317,13 @@ def test_a_page_that_disagrees_with_its_runs_is_found_and_rewritten(table, tmp_p
     copy.write_text(page.read_text().replace("<!-- table: ablation -->", ""))
     with pytest.raises(UsageError, match=re.escape("no <!-- table: ablation --> ... <!-- /")):
         module.docs_tables(args, tmp_path, write=False)
+    # A table whose end marker is mistyped would swallow the page up to the next table's
+    # end: refused, and no page written, the tables before it in the file included.
+    broken = page.read_text().replace("<!-- /table -->", "<!-- end table -->", 2)
+    copy.write_text(broken.replace(row, row.replace("| 3 |", "| 4 |", 1)))
+    with pytest.raises(UsageError, match=r"has no <!-- /table --> before the next table"):
+        module.docs_tables(args, tmp_path, write=True)
+    assert copy.read_text() == broken.replace(row, row.replace("| 3 |", "| 4 |", 1))
 
 
 def test_a_row_needs_label_and_folders(tmp_path):
@@ -478,6 +485,15 @@ def test_a_curves_table_gives_each_run_its_evaluations_and_a_median_row(tmp_path
         "0 1 0 of 2 |",
         "0 0 of 2 |",
         " |",  # no median of a sequence
+    ]
+    # The final model's stored report, where one was kept; none is played for the table.
+    final = {**table, "columns": ["final model"]}
+    report = {"episodes": 20, "report_seed": 12345, "mean": 21.5, "std": 1.0, "falls": 2}
+    (tmp_path / "row" / "seed0" / "final_model_report.json").write_text(json.dumps(report))
+    assert [line.split(" | ")[-1] for line in module.render_curves(final).splitlines()[2:]] == [
+        "21.50 (2) |",
+        " |",  # seed 1 kept no final model
+        " |",
     ]
     with pytest.raises(UsageError, match=r"no run folders for the row 'gone' \(nothing/\*\)"):
         module.render_curves({**table, "rows": {"gone": "nothing/*"}})
