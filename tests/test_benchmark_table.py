@@ -570,3 +570,61 @@ def test_keep_runs_resumable_keeps_what_a_resume_needs_and_it_goes_on(finished_r
     with pytest.raises(SystemExit, match="has no checkpoint to resume from"):
         keep_runs(stopped, tmp_path / "again", "--resumable")
     assert not (tmp_path / "again").exists()
+
+
+def test_a_branch_goes_on_from_its_checkpoint_with_the_changed_settings(
+    finished_run, tmp_path, capsys
+):
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        branch_run = importlib.import_module("branch_run")
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    branch = tmp_path / "branch" / "MinitaurBulletEnv-v0_1"
+    change = ["--hyperparams", "target_entropy=-1", "mirror=null"]
+    branch_run.main([str(finished_run), "--at", "80", "--into", str(branch), *change])
+    config = yaml.safe_load((branch / "config.yml").read_text())
+    original = yaml.safe_load((finished_run / "config.yml").read_text())
+    assert original["hyperparams"]["target_entropy"] == 0 and original["hyperparams"]["mirror"]
+    assert config["hyperparams"]["target_entropy"] == -1 and "mirror" not in config["hyperparams"]
+    zoo = yaml.safe_load((branch / "MinitaurBulletEnv-v0" / "config.yml").read_text())
+    assert zoo["target_entropy"] == -1 and "mirror" not in zoo
+    names = {p.relative_to(branch).as_posix() for p in branch.rglob("*") if p.is_file()}
+    assert "checkpoints/rl_model_replay_buffer_80_steps.npz" in names
+    # Nothing of what the run saved after 80 steps, nor its final model and verdicts.
+    assert not [name for name in names if "160" in name]
+    assert "MinitaurBulletEnv-v0.zip" not in names
+    assert (
+        (branch / "command.txt")
+        .read_text()
+        .splitlines()[-1]
+        .startswith(f"# branched at 80 steps from {finished_run}: python benchmarks/branch_run.py")
+    )
+    resumed = run_script("train.py", "--resume", str(branch), cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "(from 80)" in resumed.stdout
+    with np.load(branch / "evaluations.npz") as logged:
+        assert logged["timesteps"].tolist() == [80, 160]  # the original's 160 rewound
+    assert (branch / "MinitaurBulletEnv-v0.zip").is_file()
+    # Refusals, each in one line, each leaving nothing behind.
+    refused = tmp_path / "refused"
+    for argv, message in [
+        (["--at", "120", "--into", str(refused)], "has no checkpoint at 120 steps (kept: 80, 160)"),
+        (
+            ["--at", "80", "--into", str(refused), "--hyperparams", "n_envs=2"],
+            "--hyperparams n_envs: a branch keeps the run's",
+        ),
+        (["--at", "80", "--into", str(branch)], "already exists; name a new folder"),
+    ]:
+        with pytest.raises(SystemExit):
+            branch_run.main([str(finished_run), *argv])
+        (line,) = error_lines(capsys.readouterr().err)
+        assert message in line
+        assert not refused.exists()
+    script = run_script(
+        "benchmarks/branch_run.py", str(tmp_path), "--at", "80", "--into", "x", cwd=tmp_path
+    )
+    assert script.returncode == 2
+    assert error_lines(script) == [
+        f"branch_run.py: error: {tmp_path} is not a run folder (no config.yml) (see --help)"
+    ]
