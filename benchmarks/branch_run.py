@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from minitaur_env.training import OneLineErrorParser, UsageError
+from minitaur_env.training.files import replaced_folder
 from minitaur_env.training.hyperparams import RUN_KEYS, parse_overrides
 from minitaur_env.training.run_folder import RunFolder, normalizer_json
 from minitaur_env.training.safe_load import embedded_evaluation
@@ -42,9 +43,10 @@ def later_files(run: RunFolder, at: int) -> list[Path]:
     return [path for path in later if path.is_file()]
 
 
-def branch(run: RunFolder, at: int, into: Path, changes: dict) -> RunFolder:
+def branch(run: RunFolder, at: int, into: Path, changes: dict, command: str) -> RunFolder:
     """A copy of ``run`` as it was at checkpoint ``at``, with ``changes`` to its
-    hyperparameters (a value None removes the key)."""
+    hyperparameters (a value None removes the key); ``command`` made it. The copy is
+    written aside and appears whole or not at all."""
     if not run.checkpoint(at).is_file():
         kept = ", ".join(str(steps) for steps, _ in sorted(run.checkpoints())) or "none"
         raise UsageError(f"{run} has no checkpoint at {at} steps (kept: {kept})")
@@ -60,29 +62,28 @@ def branch(run: RunFolder, at: int, into: Path, changes: dict) -> RunFolder:
     finished = [run.zoo_model, run.learning_curve, run.provenance, run.failure_log]
     finished += list(run.path.glob("final_model_report*.json"))
     skipped = {path.resolve() for path in later_files(run, at) + finished}
-    shutil.copytree(
-        run.path,
-        into,
-        ignore=lambda folder, names: [
-            name
-            for name in names
-            if name in (run.lock_file.name, run.staging_dir.name)
-            or (Path(folder) / name).resolve() in skipped
-        ],
-    )
-    branched = RunFolder(into)
-    hyperparams = dict(config.get("hyperparams") or {})
-    for key, value in changes.items():
-        if value is None:
-            hyperparams.pop(key, None)
-        else:
-            hyperparams[key] = value
-    branched.write_config({**config, "hyperparams": hyperparams})
-    branched.append_command(
-        f"# branched at {at} steps from {run}: "
-        + shlex.join(["python", "benchmarks/branch_run.py", *sys.argv[1:]])
-    )
-    return branched
+    with replaced_folder(into) as staged:
+        shutil.copytree(
+            run.path,
+            staged,
+            dirs_exist_ok=True,
+            ignore=lambda folder, names: [
+                name
+                for name in names
+                if name in (run.lock_file.name, run.staging_dir.name)
+                or (Path(folder) / name).resolve() in skipped
+            ],
+        )
+        hyperparams = dict(config.get("hyperparams") or {})
+        for key, value in changes.items():
+            if value is None:
+                hyperparams.pop(key, None)
+            else:
+                hyperparams[key] = value
+        staged_run = RunFolder(staged)
+        staged_run.write_config({**config, "hyperparams": hyperparams})
+        staged_run.append_command(f"# branched at {at} steps from {run}: {command}")
+    return RunFolder(into)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -96,7 +97,9 @@ def main(argv: list[str] | None = None) -> None:
         if not RunFolder.is_run(args.run):
             raise UsageError(f"{args.run} is not a run folder (no config.yml)")
         changes = parse_overrides(args.hyperparams, "--hyperparams")
-        branched = branch(RunFolder(args.run), args.at, args.into, changes)
+        given = sys.argv[1:] if argv is None else argv
+        command = shlex.join(["python", "benchmarks/branch_run.py", *given])
+        branched = branch(RunFolder(args.run), args.at, args.into, changes, command)
     except UsageError as error:
         parser.error(str(error))
     print(f"branched {args.run} at {args.at} steps into {branched}; continue it with:")

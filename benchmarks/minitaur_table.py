@@ -54,6 +54,7 @@ LIVE = "#live-actor"
 TABLES_FILE = Path(__file__).resolve().parent / "tables.yml"
 TABLES: dict[str, dict] = yaml.safe_load(TABLES_FILE.read_text())
 FALL_WINDOW = (50_000, 150_000)
+REPORT_EPISODES = 20
 NONE = "-"
 
 
@@ -234,7 +235,7 @@ def most_falls_in_the_second_half(run: RunFolder) -> str:
 def stored_final_model(run: RunFolder) -> str:
     """The final model's stored result on the 20 report episodes, mean (falls): what
     ended a run beside how it got there. Plays no episodes (``--check-docs`` runs it)."""
-    report = final_report(run, 20, REPORT_SEED, rejudge=False, stored_only=True)
+    report = final_report(run, REPORT_EPISODES, REPORT_SEED, rejudge=False, stored_only=True)
     return "" if report is None else f"{report['mean']:.2f} ({report['falls']})"
 
 
@@ -411,7 +412,7 @@ def main(argv: list[str] | None = None) -> None:
         help="a row from these run folders instead of the table's own (repeatable); a GLOB "
         f"ending in {LIVE} judges the final models' live actor of an actor_ema run",
     )
-    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--episodes", type=int, default=REPORT_EPISODES)
     parser.add_argument("--report-seed", type=int, default=REPORT_SEED)
     parser.add_argument("--rejudge", action="store_true", help="play the final models again")
     parser.add_argument(

@@ -594,11 +594,10 @@ def test_a_branch_goes_on_from_its_checkpoint_with_the_changed_settings(
     # Nothing of what the run saved after 80 steps, nor its final model and verdicts.
     assert not [name for name in names if "160" in name]
     assert "MinitaurBulletEnv-v0.zip" not in names
-    assert (
-        (branch / "command.txt")
-        .read_text()
-        .splitlines()[-1]
-        .startswith(f"# branched at 80 steps from {finished_run}: python benchmarks/branch_run.py")
+    recorded = (branch / "command.txt").read_text().splitlines()[-1]
+    assert recorded == (
+        f"# branched at 80 steps from {finished_run}: python benchmarks/branch_run.py "
+        f"{finished_run} --at 80 --into {branch} --hyperparams target_entropy=-1 mirror=null"
     )
     resumed = run_script("train.py", "--resume", str(branch), cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
@@ -621,6 +620,18 @@ def test_a_branch_goes_on_from_its_checkpoint_with_the_changed_settings(
         (line,) = error_lines(capsys.readouterr().err)
         assert message in line
         assert not refused.exists()
+    # A copy that fails part-way leaves no half branch that a resume could take for whole.
+    copy = shutil.copytree
+
+    def copy_then_fail(*args, **kwargs):
+        copy(*args, **kwargs)
+        raise OSError("disk full")
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(branch_run.shutil, "copytree", copy_then_fail)
+        with pytest.raises(OSError, match="disk full"):
+            branch_run.main([str(finished_run), "--at", "80", "--into", str(refused)])
+    assert not refused.exists()
     script = run_script(
         "benchmarks/branch_run.py", str(tmp_path), "--at", "80", "--into", "x", cwd=tmp_path
     )
