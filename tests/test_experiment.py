@@ -976,6 +976,39 @@ def test_mirror_stores_each_transition_and_its_mirror_image_and_resumes_without_
     )
 
 
+def test_mirror_images_each_frame_of_a_stack_of_classic_observations():
+    from gymnasium import spaces
+
+    from minitaur_env.robot import mirror_leg_action, mirror_observation
+    from minitaur_env.sensors import OBSERVATION_BOUND
+    from minitaur_env.training.replay_buffer import MirroredReplayBuffer
+
+    bound = np.tile(OBSERVATION_BOUND, 3)
+    actions = spaces.Box(-1.0, 1.0, (8,), np.float32)
+    buffer = MirroredReplayBuffer(
+        10, spaces.Box(-bound, bound, dtype=np.float32), actions, device="cpu"
+    )
+    rng = np.random.default_rng(0)
+    frames = rng.uniform(-1.0, 1.0, (2, 3, 28)).astype(np.float32)  # 3 different frames
+    action = rng.uniform(-1.0, 1.0, (1, 8)).astype(np.float32)
+    obs, next_obs = frames[0].reshape(1, -1), frames[1].reshape(1, -1)
+    buffer.add(obs, next_obs, action, np.ones(1), np.zeros(1), [{}])
+    for stored, original in (
+        (buffer.observations, frames[0]),
+        (buffer.next_observations, frames[1]),
+    ):
+        image = stored[0, 1].reshape(3, 28)
+        assert np.array_equal(image, mirror_observation(original))  # frame by frame, in order
+        assert not np.array_equal(image, mirror_observation(original[::-1]))
+        assert np.array_equal(stored[0, 0], original.reshape(-1))
+    assert np.array_equal(buffer.actions[0, 1], mirror_leg_action(action[0]))
+
+    other = bound.copy()
+    other[28 + 5] *= 2  # the second frame is not a classic observation
+    with pytest.raises(UsageError, match="a stack of them"):
+        MirroredReplayBuffer(10, spaces.Box(-other, other, dtype=np.float32), actions)
+
+
 @pytest.mark.parametrize(
     ("algo", "env", "hyperparams", "message"),
     [

@@ -76,6 +76,23 @@ def load_replay_buffer(buffer: Any, path: Path) -> None:
     buffer.pos, buffer.full = pos, bool(content["full"])
 
 
+def stacked_classic_frames(space: spaces.Space) -> int | None:
+    """How many classic observations ``space`` holds side by side (1: the classic one,
+    k: the last k of them, as the ``history`` env argument stacks them), or None when it
+    is not made of classic observations.
+
+    The declared bounds identify the classic observation: another 28-value observation
+    would be mirrored into nonsense without a word.
+    """
+    size = OBSERVATION_BOUND.size
+    if not isinstance(space, spaces.Box) or len(space.shape) != 1 or space.shape[0] % size:
+        return None
+    frames = space.shape[0] // size
+    if frames < 1 or not np.array_equal(space.high, np.tile(OBSERVATION_BOUND, frames)):
+        return None
+    return frames
+
+
 class MirroredReplayBuffer(NStepReplayBuffer):
     """Each transition stored twice: as it happened and as its left-right mirror image
     (``robot.mirror_observation`` and ``robot.mirror_leg_action``), so that an update
@@ -100,18 +117,14 @@ class MirroredReplayBuffer(NStepReplayBuffer):
         n_steps: int = 1,
         gamma: float = 0.99,
     ) -> None:
-        # The declared bounds identify the classic observation: another 28-value
-        # observation would be mirrored into nonsense without a word.
-        classic = (
-            isinstance(observation_space, spaces.Box)
-            and observation_space.shape == OBSERVATION_BOUND.shape
-            and np.array_equal(observation_space.high, OBSERVATION_BOUND)
-        )
-        if not classic or getattr(action_space, "shape", None) != (2 * NUM_LEGS,):
+        frames = stacked_classic_frames(observation_space)
+        if frames is None or getattr(action_space, "shape", None) != (2 * NUM_LEGS,):
             raise UsageError(
-                "mirror: needs the classic 28-value observation and the 8 leg-model actions, "
-                f"got observations {observation_space} and actions {action_space}"
+                "mirror: needs the classic 28-value observation (or a stack of them) and the "
+                f"8 leg-model actions, got observations {observation_space} "
+                f"and actions {action_space}"
             )
+        self.frames = frames
         low, high = action_space.low, action_space.high
         if not (
             np.array_equal(mirror_leg_action(low), low)
@@ -146,10 +159,14 @@ class MirroredReplayBuffer(NStepReplayBuffer):
         next_obs = next_obs.reshape((real_envs, *self.obs_shape))
         action = action.reshape((real_envs, self.action_dim))
         super().add(
-            np.concatenate([obs, mirror_observation(obs)]),
-            np.concatenate([next_obs, mirror_observation(next_obs)]),
+            np.concatenate([obs, self._mirror(obs)]),
+            np.concatenate([next_obs, self._mirror(next_obs)]),
             np.concatenate([action, mirror_leg_action(action)]),
             np.concatenate([reward, reward]),
             np.concatenate([done, done]),
             [*infos, *infos],
         )
+
+    def _mirror(self, observation: np.ndarray) -> np.ndarray:
+        frames = observation.reshape((*observation.shape[:-1], self.frames, -1))
+        return mirror_observation(frames).reshape(observation.shape)
