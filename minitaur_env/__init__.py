@@ -41,10 +41,14 @@ ENV_IDS = (
 RANDOMIZED_KWARGS = {"preset": "tan2018"}
 
 _SPECS = {
-    "MinitaurBullet-v0": ("minitaur_env.env:MinitaurBulletEnv", 15.0, {}),
-    "MinitaurBulletEnv-v0": ("minitaur_env.env:MinitaurBulletEnv", 15.0, {}),
+    "MinitaurBullet-v0": ("minitaur_env.env:make_minitaur_env", 15.0, {}),
+    "MinitaurBulletEnv-v0": ("minitaur_env.env:make_minitaur_env", 15.0, {}),
     "MinitaurBulletDuckEnv-v0": ("minitaur_env.env:MinitaurBulletDuckEnv", 5.0, {}),
-    "MinitaurBulletRandomized-v0": ("minitaur_env.env:MinitaurBulletEnv", 15.0, RANDOMIZED_KWARGS),
+    "MinitaurBulletRandomized-v0": (
+        "minitaur_env.env:make_minitaur_env",
+        15.0,
+        RANDOMIZED_KWARGS,
+    ),
     "MinitaurBulletTrot-v0": ("minitaur_env.gait:make_trotting_env", 15.0, {}),
     "MinitaurBulletTrotRandomized-v0": (
         "minitaur_env.gait:make_trotting_env",

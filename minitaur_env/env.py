@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from gymnasium.error import ResetNeeded
+from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
 from minitaur_env.checks import boolean, checked_action, choice, integer, number
 from minitaur_env.randomization import DynamicsRanges, Pushes, apply_dynamics, sample_dynamics
@@ -52,6 +53,7 @@ CONTROL_TIME_STEP = 0.01  # s, one action at 100 Hz
 SUBSTEPS = 5  # physics steps per control step with a simulated motor model
 SOLVER_ITERATIONS = 300  # per control step; split over the substeps
 GRAVITY = -10.0
+MAX_HISTORY = 16  # observations a policy may see at once (the ``history`` argument)
 SETTLE_STEPS = 100  # physics steps holding every motor at pi/2 before an episode
 FALL_UP_Z = 0.85  # the base's up axis must keep this world-z component
 FALL_HEIGHT = 0.13  # m, minimum base height
@@ -638,6 +640,29 @@ class MinitaurBulletDuckEnv(MinitaurBulletEnv):
 
 
 # dynamics_ranges fields that moved to realism in 0.3, and their realism names.
+
+
+def with_history(env: gym.Env, history: int) -> gym.Env:
+    """``env`` seeing its last ``history`` (1 to 16) observations, newest last, flattened
+    into one vector (the first observation repeated at reset); ``env`` itself for 1."""
+    history = integer("history", history, 1, MAX_HISTORY)
+    if history == 1:
+        return env
+    return FlattenObservation(FrameStackObservation(env, history))
+
+
+def make_minitaur_env(render_mode: str | None = None, history: int = 1, **kwargs: Any) -> gym.Env:
+    """``MinitaurBulletEnv(render_mode, **kwargs)`` seeing its last ``history``
+    observations (:func:`with_history`); with the default 1, the classic env itself.
+
+    The classic observation has no base velocity: a stack of them says where the body
+    is going as well as where it is (``history: 3`` in SAC's ``minitaur-history``
+    entry). What the env simulates and rewards is unchanged.
+    """
+    integer("history", history, 1, MAX_HISTORY)  # before the simulator is built
+    return with_history(MinitaurBulletEnv(render_mode, **kwargs), history)
+
+
 MOVED_RANGES = {
     "control_step": "control_time_step",
     "control_latency": "control_latency",

@@ -21,17 +21,15 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.wrappers import FlattenObservation, FrameStackObservation
 
 from minitaur_env.checks import checked_action, from_mapping, integer, number
-from minitaur_env.env import MinitaurBulletEnv
+from minitaur_env.env import MAX_HISTORY, MinitaurBulletEnv, with_history
 from minitaur_env.robot import NUM_MOTORS
 
 # Front-left and back-right legs swing together, back-left and front-right half a cycle
 # later (the leg order of the action: front-left, back-left, front-right, back-right).
 TROT_PHASE_OFFSETS = np.array([0.0, math.pi, math.pi, 0.0])
 MODULATION_ENTRIES = 3  # frequency, extension amplitude, swing amplitude
-MAX_HISTORY = 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,11 +150,8 @@ def make_trotting_env(
     and pushes a single observation says where the body is but not where it is going; the
     classic observation has no base velocity.
     """
-    history = integer("history", history, 1, MAX_HISTORY)
-    env: gym.Env = TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait)
-    if history > 1:
-        env = FlattenObservation(FrameStackObservation(env, history))
-    return env
+    integer("history", history, 1, MAX_HISTORY)  # before the simulator is built
+    return with_history(TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait), history)
 
 
 def has_gait_prior(env_id: str) -> bool:

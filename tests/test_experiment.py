@@ -759,6 +759,7 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, hyperparams, me
         ("sac", "minitaur-gain"),
         ("sac", "minitaur-mirror"),
         ("sac", "minitaur-pink"),
+        ("sac", "minitaur-history"),
         ("tqc", None),
         ("crossq", None),
     ],
@@ -789,7 +790,12 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     assert (buffer == "MirroredReplayBuffer") == bool(entry.get("mirror"))
     # None: the env's own entry
     mirror_entries = [("sac", None), ("sac", "minitaur-mirror"), ("sac", "minitaur-pink")]
+    mirror_entries.append(("sac", "minitaur-history"))
     assert bool(entry.get("mirror")) == ((algo, name) in mirror_entries)
+    # the entry's history reaches the env, beside the env settings given here
+    frames = 3 if name == "minitaur-history" else 1
+    assert experiment.model.observation_space.shape == (28 * frames,)
+    assert config.env_kwargs == {"max_episode_steps": 40, **({"history": 3} if frames > 1 else {})}
 
 
 @pytest.mark.parametrize(

@@ -201,25 +201,31 @@ def test_a_gait_prior_policy_trains_plays_and_packages_with_its_generator(tmp_pa
     assert "on MinitaurBulletTrot-v0" in played.stdout
 
 
-def test_history_shows_the_last_observations_newest_last():
-    single = gym.make("MinitaurBulletTrotRandomized-v0")
-    stacked = gym.make("MinitaurBulletTrotRandomized-v0", history=3)
-    assert stacked.observation_space.shape == (90,)
+@pytest.mark.parametrize(
+    ("env_id", "size", "actions"),
+    [("MinitaurBulletTrotRandomized-v0", 30, 11), ("MinitaurBulletEnv-v0", 28, 8)],
+)
+def test_history_shows_the_last_observations_newest_last(env_id, size, actions):
+    single = gym.make(env_id)
+    stacked = gym.make(env_id, history=3)
+    assert single.observation_space.shape == (size,)  # the default is the env's own
+    assert stacked.observation_space.shape == (3 * size,)
     rng = np.random.default_rng(1)
     seen = [single.reset(seed=4)[0]]
     first, _ = stacked.reset(seed=4)
     np.testing.assert_array_equal(first, np.tile(seen[0], 3))  # the first, repeated
     for _ in range(5):
-        action = rng.uniform(-1, 1, 11)
+        action = rng.uniform(-1, 1, actions)
         seen.append(single.step(action)[0])
         observation = stacked.step(action)[0]
-        np.testing.assert_array_equal(observation[60:], seen[-1])
-        np.testing.assert_array_equal(observation[30:60], seen[-2])
-        np.testing.assert_array_equal(observation[:30], seen[-3] if len(seen) > 2 else seen[0])
+        np.testing.assert_array_equal(observation[2 * size :], seen[-1])
+        np.testing.assert_array_equal(observation[size : 2 * size], seen[-2])
+        np.testing.assert_array_equal(observation[:size], seen[-3] if len(seen) > 2 else seen[0])
+        assert not np.array_equal(observation[2 * size :], observation[size : 2 * size])
     single.close()
     stacked.close()
     with pytest.raises(ValueError, match=r"^history must be an int in \[1, 16\], got 0"):
-        gym.make("MinitaurBulletTrot-v0", history=0)
+        gym.make(env_id, history=0)
 
 
 def test_the_gait_prior_is_read_from_the_env_spec_not_the_id():
