@@ -397,6 +397,43 @@ def test_noise_color_until_turns_the_exploring_noise_white_there_and_after_a_res
     assert resumed.model.policy.noise_color == 0.0
 
 
+@pytest.mark.parametrize("backend", ["sb3", "sbx"])
+def test_n_steps_after_shortens_the_sampled_returns_there_and_after_a_resume(tmp_path, backend):
+    if backend == "sbx":
+        needs("sbx")
+    shorter = {"at": 0.5, "n_steps": 1}
+    config = tiny_run({}, backend, n_steps=3, gamma=0.9, n_steps_after=shorter)
+    experiment = Experiment.create(config, tmp_path, verbose=0)
+    result = experiment.run()
+    assert result.status == "completed"
+    # From step 30 of 60 every sampled return is one step long: discounted once.
+    sampled = experiment.model.replay_buffer.sample(64).discounts.numpy()
+    np.testing.assert_allclose(sampled, 0.9)
+    control = Experiment.create(tiny_run({}, backend, n_steps=3, gamma=0.9), tmp_path, verbose=0)
+    control.run()
+    assert control.model.replay_buffer.n_steps == 3  # without the key: 3 steps to the end
+    assert np.isclose(control.model.replay_buffer.sample(64).discounts.numpy(), 0.9**3).any()
+    # Resumed (its zip still says n_steps 3): one step again from the start.
+    resumed = Experiment.resume(result.run.path, n_timesteps=90, verbose=0)
+    assert resumed.run().status == "completed" and resumed.resumed_at == 60
+    assert resumed.model.replay_buffer.n_steps == 1
+
+
+@pytest.mark.parametrize(
+    ("algo", "hyperparams", "message"),
+    [
+        ("sac", {"n_steps": 3, "n_steps_after": {"at": 1.5, "n_steps": 1}}, r"\.at must be"),
+        ("sac", {"n_steps": 3, "n_steps_after": {"at": 0.5, "n_steps": 3}}, "below the entry's"),
+        ("sac", {"n_steps_after": {"at": 0.5, "n_steps": 1}}, r"below the entry's n_steps \(1\)"),
+        ("sac", {"n_steps": 3, "n_steps_after": 0.5}, "expected {at: "),
+        ("ppo", {"n_steps_after": {"at": 0.5, "n_steps": 1}}, "ppo has no n-step returns"),
+    ],
+)
+def test_n_steps_after_bad_values_are_one_line(algo, hyperparams, message):
+    with pytest.raises(UsageError, match=message):
+        ExperimentConfig.resolve(algo, "Pendulum-v1", hyperparams=hyperparams).validate()
+
+
 @pytest.mark.parametrize(
     ("hyperparams", "message"),
     [

@@ -22,6 +22,7 @@ from minitaur_env.training.envs import make_env
 from minitaur_env.training.hyperparams import (
     entropy_decay,
     hard_draws,
+    n_steps_after,
     noise_color_until,
     push_curriculum,
 )
@@ -152,6 +153,23 @@ class HardDraws(BaseCallback):
         return True
 
 
+class ShorterReturnsFrom(_StepSchedule):
+    """The replay buffer's n-step returns at ``n_steps`` from step ``step`` on: the
+    buffer computes the returns when it samples, so every update from then on learns
+    from the shorter ones; set again before a run resumed past ``step`` trains (its zip
+    still names the n it started with)."""
+
+    def __init__(self, step: int, n_steps: int) -> None:
+        super().__init__()
+        self.step, self.n_steps = step, n_steps
+
+    def _apply(self) -> None:
+        buffer = self.model.replay_buffer
+        if self.model.num_timesteps >= self.step and buffer.n_steps != self.n_steps:
+            buffer.n_steps = self.model.n_steps = self.n_steps
+        self.logger.record("train/n_steps", float(buffer.n_steps))
+
+
 def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     """The callbacks that change a setting as training goes, from the config's entry."""
     callbacks: list[BaseCallback] = []
@@ -170,6 +188,10 @@ def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     until = noise_color_until(config.hyperparams)
     if until is not None:
         callbacks.append(WhiteNoiseFrom(int(until * steps)))
+    shorter = n_steps_after(config.hyperparams, config.algo)
+    if shorter is not None:
+        at, n_steps = shorter
+        callbacks.append(ShorterReturnsFrom(int(at * steps), n_steps))
     return callbacks
 
 

@@ -18,6 +18,7 @@ from minitaur_env.training.hyperparams import (
     hard_draws,
     load_hyperparams,
     mirrored,
+    n_steps_after,
     noise_color_until,
     push_curriculum,
 )
@@ -143,6 +144,7 @@ class ExperimentConfig:
             )
         entropy_decay(self.hyperparams, self.algo)
         noise_color_until(self.hyperparams)
+        n_steps_after(self.hyperparams, self.algo)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)

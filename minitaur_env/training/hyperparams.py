@@ -11,6 +11,7 @@ from typing import Any
 import yaml
 
 from minitaur_env.training import UsageError, env_name
+from minitaur_env.training.algorithms import OFF_POLICY
 from minitaur_env.training.files import parse_yaml, read_yaml
 
 # Keys of a hyperparameter entry that configure the run rather than the algorithm. An
@@ -36,12 +37,17 @@ HARD_DRAWS_KEY = "hard_draws"
 # ``noise_color_until: 0.3``: SAC explores with the policy's colored noise (its
 # ``noise_color``) until that fraction of n_timesteps, and with white noise after it.
 NOISE_COLOR_UNTIL_KEY = "noise_color_until"
+# ``n_steps_after: {at: 0.2, n_steps: 5}``: an off-policy run's n-step returns shorten
+# from its ``n_steps`` to these at that fraction of n_timesteps: long returns carry the
+# reward of a first walk back faster, short ones bias the end of training less.
+N_STEPS_AFTER_KEY = "n_steps_after"
 # Read by callbacks, not the algorithm.
 CALLBACK_KEYS = (
     ENTROPY_DECAY_KEY,
     PUSH_CURRICULUM_KEY,
     HARD_DRAWS_KEY,
     NOISE_COLOR_UNTIL_KEY,
+    N_STEPS_AFTER_KEY,
 )
 # ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
 # happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
@@ -247,6 +253,35 @@ def noise_color_until(hyperparams: dict[str, Any]) -> float | None:
             "a policy's colored noise (policy: StabilizedMlpPolicy, policy_kwargs noise_color)"
         )
     return float(until)
+
+
+def n_steps_after(hyperparams: dict[str, Any], algo: str) -> tuple[float, int] | None:
+    """The fraction of n_timesteps and the shorter n of an ``n_steps_after`` entry, or
+    None without one. It shortens an off-policy entry's ``n_steps`` (PPO's ``n_steps``
+    is its rollout length, not a return's)."""
+    entry = hyperparams.get(N_STEPS_AFTER_KEY)
+    if entry is None:
+        return None
+    if algo not in OFF_POLICY:
+        raise UsageError(
+            f"{N_STEPS_AFTER_KEY}: {algo} has no n-step returns to shorten; it is for "
+            f"{', '.join(sorted(OFF_POLICY))}"
+        )
+    expected = "{at: <fraction of n_timesteps>, n_steps: <a shorter n>}"
+    if not isinstance(entry, dict) or set(entry) != {"at", "n_steps"}:
+        raise UsageError(f"{N_STEPS_AFTER_KEY}: expected {expected}, got {entry!r}")
+    at, shorter = entry["at"], entry["n_steps"]
+    if isinstance(at, bool) or not isinstance(at, (int, float)) or not 0 < at < 1:
+        raise UsageError(
+            f"{N_STEPS_AFTER_KEY}.at must be a fraction of n_timesteps in (0, 1), got {at!r}"
+        )
+    longest = hyperparams.get("n_steps", 1)
+    if isinstance(shorter, bool) or not isinstance(shorter, int) or not 1 <= shorter < longest:
+        raise UsageError(
+            f"{N_STEPS_AFTER_KEY}.n_steps must be a whole number from 1 to below the "
+            f"entry's n_steps ({longest}), got {shorter!r}"
+        )
+    return float(at), shorter
 
 
 def mirrored(hyperparams: dict[str, Any]) -> bool:
