@@ -188,7 +188,7 @@ def schedules(config: ExperimentConfig) -> list[BaseCallback]:
     until = noise_color_until(config.hyperparams)
     if until is not None:
         callbacks.append(WhiteNoiseFrom(int(until * steps)))
-    shorter = n_steps_after(config.hyperparams, config.algo)
+    shorter = n_steps_after(config.hyperparams)
     if shorter is not None:
         at, n_steps = shorter
         callbacks.append(ShorterReturnsFrom(int(at * steps), n_steps))

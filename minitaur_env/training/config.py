@@ -12,6 +12,7 @@ from minitaur_env.training import VEC_ENVS, UsageError
 from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, infer_algo
 from minitaur_env.training.hyperparams import (
     HARD_DRAWS_KEY,
+    N_STEPS_AFTER_KEY,
     RUN_KEYS,
     algorithm_kwargs,
     entropy_decay,
@@ -144,7 +145,12 @@ class ExperimentConfig:
             )
         entropy_decay(self.hyperparams, self.algo)
         noise_color_until(self.hyperparams)
-        n_steps_after(self.hyperparams, self.algo)
+        if N_STEPS_AFTER_KEY in self.hyperparams and self.algo not in OFF_POLICY:
+            raise UsageError(
+                f"{N_STEPS_AFTER_KEY}: {self.algo} has no n-step returns to shorten; it is "
+                f"for {', '.join(sorted(OFF_POLICY))}"
+            )
+        n_steps_after(self.hyperparams)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)

@@ -11,7 +11,6 @@ from typing import Any
 import yaml
 
 from minitaur_env.training import UsageError, env_name
-from minitaur_env.training.algorithms import OFF_POLICY
 from minitaur_env.training.files import parse_yaml, read_yaml
 
 # Keys of a hyperparameter entry that configure the run rather than the algorithm. An
@@ -255,18 +254,13 @@ def noise_color_until(hyperparams: dict[str, Any]) -> float | None:
     return float(until)
 
 
-def n_steps_after(hyperparams: dict[str, Any], algo: str) -> tuple[float, int] | None:
+def n_steps_after(hyperparams: dict[str, Any]) -> tuple[float, int] | None:
     """The fraction of n_timesteps and the shorter n of an ``n_steps_after`` entry, or
-    None without one. It shortens an off-policy entry's ``n_steps`` (PPO's ``n_steps``
-    is its rollout length, not a return's)."""
+    None without one. It shortens an off-policy entry's ``n_steps``; the config refuses
+    it for other algorithms (PPO's ``n_steps`` is its rollout length, not a return's)."""
     entry = hyperparams.get(N_STEPS_AFTER_KEY)
     if entry is None:
         return None
-    if algo not in OFF_POLICY:
-        raise UsageError(
-            f"{N_STEPS_AFTER_KEY}: {algo} has no n-step returns to shorten; it is for "
-            f"{', '.join(sorted(OFF_POLICY))}"
-        )
     expected = "{at: <fraction of n_timesteps>, n_steps: <a shorter n>}"
     if not isinstance(entry, dict) or set(entry) != {"at", "n_steps"}:
         raise UsageError(f"{N_STEPS_AFTER_KEY}: expected {expected}, got {entry!r}")
