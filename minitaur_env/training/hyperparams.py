@@ -36,7 +36,7 @@ HARD_DRAWS_KEY = "hard_draws"
 # ``noise_color_until: 0.3``: SAC explores with the policy's colored noise (its
 # ``noise_color``) until that fraction of n_timesteps, and with white noise after it.
 NOISE_COLOR_UNTIL_KEY = "noise_color_until"
-# ``n_steps_after: {at: 0.2, n_steps: 5}``: an off-policy run's n-step returns shorten
+# ``n_steps_after: {at: 0.5, n_steps: 5}``: an off-policy run's n-step returns shorten
 # from its ``n_steps`` to these at that fraction of n_timesteps: long returns carry the
 # reward of a first walk back faster, short ones bias the end of training less.
 N_STEPS_AFTER_KEY = "n_steps_after"
