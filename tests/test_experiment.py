@@ -760,6 +760,7 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, hyperparams, me
         ("sac", "minitaur-mirror"),
         ("sac", "minitaur-pink"),
         ("sac", "minitaur-history"),
+        ("sac", "minitaur-history-nstep"),
         ("tqc", None),
         ("crossq", None),
     ],
@@ -790,12 +791,15 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     assert (buffer == "MirroredReplayBuffer") == bool(entry.get("mirror"))
     # None: the env's own entry
     mirror_entries = [("sac", None), ("sac", "minitaur-mirror"), ("sac", "minitaur-pink")]
-    mirror_entries.append(("sac", "minitaur-history"))
+    history_entries = [("sac", "minitaur-history"), ("sac", "minitaur-history-nstep")]
+    mirror_entries += history_entries
     assert bool(entry.get("mirror")) == ((algo, name) in mirror_entries)
     # the entry's history reaches the env, beside the env settings given here
-    frames = 3 if name == "minitaur-history" else 1
+    frames = 3 if (algo, name) in history_entries else 1
     assert experiment.model.observation_space.shape == (28 * frames,)
     assert config.env_kwargs == {"max_episode_steps": 40, **({"history": 3} if frames > 1 else {})}
+    if name == "minitaur-history-nstep":  # 10-step returns handed over to 5 at step 32
+        assert entry["n_steps"] == 10 and experiment.model.replay_buffer.n_steps == 5
 
 
 @pytest.mark.parametrize(
