@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import yaml
 
@@ -63,3 +65,27 @@ def test_each_shipped_agent_has_a_hub_folder_that_agrees_with_its_provenance(pat
             if command:
                 assert command.split("train.py", 1)[-1].strip() in card_text, command
         block = block.get("started_from") or {}
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.parent.parent.name for p in SHIPPED])
+def test_each_hub_cards_usage_snippet_walks_the_agent_from_the_hub_files(path):
+    """The card's code, as a Hub user copies it, on the folder's own files."""
+    provenance = yaml.safe_load((path.parent / "provenance.yml").read_text())
+    name = f"{provenance['algo']}-{provenance['env']}"
+    folder = PRETRAINED_DIR / "hub" / name
+    card = (folder / "README.md").read_text()
+    snippet = card.split("## Usage", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    assert f'load_from_hub("<user>/{name}"' in snippet
+    # The Hub download, replaced by the files it would download; 200 steps, not 1000.
+    snippet = re.sub(
+        rf'load_from_hub\("<user>/{re.escape(name)}", "([^"]+)"\)',
+        lambda match: repr(str(folder / match.group(1))),
+        snippet.replace("from huggingface_sb3 import load_from_hub\n", ""),
+    ).replace("range(1000)", "range(200)")
+    namespace: dict = {}
+    exec(compile(snippet, f"{name}/README.md", "exec"), namespace)
+    # Half the claimed speed over the episode's own 200 control steps; a fall would have
+    # reset the position to the start.
+    dt = namespace["env"].venv.envs[0].unwrapped.dt
+    distance = namespace["info"][0]["base_position"][0]
+    assert distance > 0.5 * provenance["eval_mean_speed_m_per_s"] * 200 * dt, distance

@@ -196,7 +196,8 @@ def _model_card(
     else:
         normalization = ""
     # The env the policy was trained on: its id and the keyword arguments of its run.
-    make = f'gym.make("{env_id}"' + (f", **{env_kwargs!r})" if env_kwargs else ")")
+    arguments = "".join(f", {key}={value!r}" for key, value in (env_kwargs or {}).items())
+    make = f'gym.make("{env_id}"{arguments})'
     actions = "actions in env units out"
     if has_gait_prior(env_id):
         actions += (
