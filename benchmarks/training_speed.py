@@ -28,6 +28,7 @@ import time
 import gymnasium as gym
 import torch
 from stable_baselines3 import SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
@@ -68,10 +69,16 @@ def measure(
     else:
         algorithm = SAC
     model = algorithm("MlpPolicy", env, learning_starts=warmup, seed=0, device="cpu", **sac_kwargs)
-    timer = _LearningPhaseTimer(warmup + untimed)
-    model.learn(total_timesteps=warmup + untimed + steps, callback=timer)
+    return learning_rate_of(model, steps, untimed)
+
+
+def learning_rate_of(model: BaseAlgorithm, steps: int, untimed: int = 200) -> float:
+    """Env steps/s of an off-policy ``model``'s learning phase over ``steps`` env steps,
+    timed from ``untimed`` updates after its ``learning_starts``; closes its env."""
+    timer = _LearningPhaseTimer(model.learning_starts + untimed)
+    model.learn(total_timesteps=model.learning_starts + untimed + steps, callback=timer)
     elapsed = time.perf_counter() - timer.started
-    env.close()
+    model.get_env().close()
     return (model.num_timesteps - timer.steps_at_start) / elapsed
 
 

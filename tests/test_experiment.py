@@ -272,7 +272,7 @@ def test_resume_never_goes_on_with_an_empty_replay_buffer(tmp_path):
 
 def test_config_resolves_entries_and_rejects_bad_values():
     tuned = ExperimentConfig.resolve("sac", "MinitaurBulletEnv-v0")
-    assert tuned.hyperparams["n_steps"] == 5 and tuned.normalize is True
+    assert tuned.hyperparams["n_steps"] == 10 and tuned.normalize is True
     tutorial = ExperimentConfig.resolve("sac", "MinitaurBulletEnv-v0", entry="tutorial")
     assert tutorial.n_timesteps == 100_000 and tutorial.hyperparams["buffer_size"] == 10_000
     assert ExperimentConfig.from_dict({**tuned.to_dict(), "overlap_updates": False}) == tuned
@@ -298,9 +298,11 @@ def test_run_folder_names_every_file_in_one_place(tmp_path):
     # The same settings where rl-baselines3-zoo looks for them, beside <env>.zip.
     assert run.final_model == run.path / "MinitaurBulletEnv-v0.zip"
     zoo = yaml.safe_load((run.zoo_dir / "config.yml").read_text())
-    assert zoo["normalize"] is True and zoo["n_steps"] == 5 and zoo["policy"] == "MlpPolicy"
+    assert zoo["normalize"] is True and zoo["n_steps"] == 10 and zoo["policy"] == "MlpPolicy"
     zoo_args = yaml.safe_load((run.zoo_dir / "args.yml").read_text())
-    assert zoo_args["seed"] == 3 and zoo_args["env_kwargs"] == {"max_episode_steps": 40}
+    # The entry's own env kwargs (the default sees three observations) and the run's.
+    assert zoo_args["seed"] == 3
+    assert zoo_args["env_kwargs"] == {"history": 3, "max_episode_steps": 40}
     with pytest.raises(UsageError, match=r"no config\.yml"):
         RunFolder.existing(tmp_path / "sac" / "MinitaurBulletEnv-v0_2")
 
@@ -789,16 +791,20 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     assert colored == (1.0 if name == "minitaur-pink" else 0.0)
     buffer = type(experiment.model.replay_buffer).__name__
     assert (buffer == "MirroredReplayBuffer") == bool(entry.get("mirror"))
-    # None: the env's own entry
-    mirror_entries = [("sac", None), ("sac", "minitaur-mirror"), ("sac", "minitaur-pink")]
-    history_entries = [("sac", "minitaur-history"), ("sac", "minitaur-history-nstep")]
-    mirror_entries += history_entries
+    # None: the env's own entry, minitaur-history-nstep
+    history_entries = [
+        ("sac", None),
+        ("sac", "minitaur-history"),
+        ("sac", "minitaur-history-nstep"),
+    ]
+    mirror_entries = [("sac", "minitaur-mirror"), ("sac", "minitaur-pink"), *history_entries]
     assert bool(entry.get("mirror")) == ((algo, name) in mirror_entries)
     # the entry's history reaches the env, beside the env settings given here
     frames = 3 if (algo, name) in history_entries else 1
     assert experiment.model.observation_space.shape == (28 * frames,)
     assert config.env_kwargs == {"max_episode_steps": 40, **({"history": 3} if frames > 1 else {})}
-    if name == "minitaur-history-nstep":  # 10-step returns handed over to 5 at step 32
+    if (algo, name) in [("sac", None), ("sac", "minitaur-history-nstep")]:
+        # 10-step returns handed over to 5 at step 32, half the run
         assert entry["n_steps"] == 10 and experiment.model.replay_buffer.n_steps == 5
 
 
@@ -947,6 +953,7 @@ def test_mirror_stores_each_transition_and_its_mirror_image_and_resumes_without_
         config = ExperimentConfig.resolve(
             "sac",
             "MinitaurBulletEnv-v0",
+            entry="minitaur-mirror",  # one observation, fixed 3-step returns
             hyperparams={**SMALL_SAC, "n_steps": 3, **hyperparams},
             n_timesteps=120,
             eval_freq=0,

@@ -46,7 +46,9 @@ def test_each_shipped_policy_onnx_acts_as_its_zip_over_a_whole_episode(shipped):
     assert hub_copy.read_bytes() == onnx_file.read_bytes()
     model, onnx = load_policy(shipped, device="cpu"), OnnxPolicy(onnx_file)
     assert (onnx.algo, onnx.env_id) == (model.algo, "MinitaurBulletEnv-v0")
-    env = make_env("MinitaurBulletEnv-v0")
+    # The file names the env it was trained on (the shipped SAC sees three observations).
+    assert onnx.env_kwargs == model.env_kwargs
+    env = make_env("MinitaurBulletEnv-v0", onnx.env_kwargs)
     obs, _ = env.reset(seed=777)
     differences, steps, done = [], 0, False
     while not done:  # the zip drives; both act on the same observations
@@ -79,8 +81,9 @@ def test_a_run_folder_exports_its_final_model(tmp_path):
     written = export(shipped, tmp_path / "policy.onnx")
     assert written.returncode == 0, written.stderr
     assert "observation normalization folded" in written.stdout
-    obs = np.random.default_rng(3).normal(size=(16, 28)).astype(np.float32)
     model = load_policy(shipped / "MinitaurBulletEnv-v0.zip", device="cpu")
+    shape = (16, *model.model.observation_space.shape)  # 28 per observation in its history
+    obs = np.random.default_rng(3).normal(size=shape).astype(np.float32)
     got = OnnxPolicy(tmp_path / "policy.onnx").session.run(None, {"obs": obs})[0]
     np.testing.assert_allclose(got, np.stack([model.act(o) for o in obs]), atol=1e-5)
 

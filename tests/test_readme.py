@@ -60,9 +60,10 @@ def test_the_docs_have_the_snippets_this_test_runs():
 
 def test_python_snippets_run(tmp_path):
     # In order, in one namespace: the ONNX snippet plays the obs of the first one, and
-    # runs where a policy.onnx lies (the shipped SAC's, copied).
+    # runs where a policy.onnx lies (the shipped PPO's, copied: it sees one observation,
+    # as the first snippet's env gives it).
     shutil.copyfile(
-        REPO / "pretrained/sac/MinitaurBulletEnv-v0_1/policy.onnx", tmp_path / "policy.onnx"
+        REPO / "pretrained/ppo/MinitaurBulletEnv-v0_1/policy.onnx", tmp_path / "policy.onnx"
     )
     script = "\n\n".join(without_training(block) for block in PYTHON_BLOCKS)
     script += "\nprint(frame.shape, action.shape, config.seed)"
