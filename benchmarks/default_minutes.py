@@ -8,8 +8,8 @@ in one process and in turns:
 - evaluation: the shipped SAC and PPO policies playing full episodes on
   MinitaurBulletEnv-v0, deterministic, one env (as a run's evaluation plays them);
 - training: PPO's default entry (8 envs in ``GroupedSubprocVecEnv``, one torch thread,
-  as ``train.py`` runs it) and SAC with the default entry's update pattern (8 gradient
-  steps every 8 env steps, batch 256, (256, 256), one torch thread; SB3 and SBX).
+  as ``train.py`` runs it) and SAC's default entry as ``train.py`` builds it (its
+  observations, replay buffer and update pattern; one torch thread; SB3 and SBX).
 
 It prints what evaluations cost each default command over its whole budget at each
 ``--settings FREQ:EPISODES`` (10000:20 were the flags' defaults until 2026-11-28), and
@@ -32,12 +32,16 @@ from glob import glob
 from pathlib import Path
 
 import numpy as np
-from training_speed import measure, measure_ppo
+import torch
+from stable_baselines3.common.vec_env import VecNormalize
+from training_speed import learning_rate_of, measure_ppo
 
 import minitaur_env  # noqa: F401  (registers the ids)
 from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.config import ExperimentConfig
-from minitaur_env.training.evaluation import load_policy, run_episodes
+from minitaur_env.training.envs import make_training_env
+from minitaur_env.training.evaluation import load_policy, playing_kwargs, run_episodes
+from minitaur_env.training.experiment import new_model
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.seeds import REPORT_SEED
 from minitaur_env.training.single_env import make_env
@@ -50,16 +54,8 @@ WALKS = 15.0
 # Each default command: its algorithm and backend, and the kept runs of its entry (the
 # benchmark table's rows, benchmarks/tables.yml).
 COMMANDS = {
-    "python train.py": ("sac", "sb3", ["sac-mirror/seed*"]),
-    "python train.py --backend sbx": (
-        "sac",
-        "sbx",
-        [
-            "sbx-mirror-g098-300/seed*",
-            "sbx-mirror-g098-300-23/seed*",
-            "sbx-mirror-g098-300-4/seed*",
-        ],
-    ),
+    "python train.py": ("sac", "sb3", ["sb3-h3-n10to5/seed*"]),
+    "python train.py --backend sbx": ("sac", "sbx", ["sbx-h3-n10to5/seed*"]),
     "python train.py --algo ppo": ("ppo", "sb3", ["ppo-lin/seed*"]),
 }
 
@@ -68,7 +64,7 @@ def evaluation_rate(algo: str, episodes: int) -> tuple[float, int]:
     """Env steps/s of the shipped ``algo`` policy playing ``episodes`` deterministic
     episodes, and how many of them fell."""
     policy = load_policy(SHIPPED[algo], device="cpu")
-    env = make_env(ENV, {})
+    env = make_env(ENV, playing_kwargs(policy, {}))  # the env it was trained on
     try:
         run_episodes(policy, env, 1, REPORT_SEED)  # start-up, not timed
         start = time.perf_counter()
@@ -83,7 +79,15 @@ def training_rate(command: str, sac_steps: int, ppo_steps: int) -> float:
     algo, backend, _ = COMMANDS[command]
     if algo == "ppo":
         return measure_ppo(ppo_steps, "grouped", 1)
-    return measure(sac_steps, 300, threads=1, backend=backend, train_freq=8, gradient_steps=8)
+    # The default entry's own model (history, n-step returns, mirrored replay, normalized
+    # observations), one torch thread, updates from 300 steps on.
+    torch.set_num_threads(1)
+    config = ExperimentConfig.resolve(
+        algo, ENV, backend=backend, hyperparams={"learning_starts": 300}, device="cpu"
+    )
+    env = make_training_env(ENV, n_envs=1, seed=0, env_kwargs=config.env_kwargs, vec_env="dummy")
+    env = VecNormalize(env, gamma=config.hyperparams.get("gamma", 0.99))
+    return learning_rate_of(new_model(config, env), sac_steps)
 
 
 def median_steps_to(milestone: float, patterns: list[str]) -> tuple[float, int]:
