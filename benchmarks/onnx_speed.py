@@ -53,7 +53,8 @@ def main() -> None:
                 return module(torch.as_tensor(obs[None]))[0].numpy()
 
         paths = {"onnx": onnx.act, "predict": model.act, "torch": torch_forward}
-        observations = rng.normal(size=(args.actions, 28)).astype(np.float32)
+        inputs = model.model.observation_space.shape[0]  # 84 for a policy seeing 3 observations
+        observations = rng.normal(size=(args.actions, inputs)).astype(np.float32)
         for act in paths.values():  # warm-up
             per_action_us(act, observations[:100])
         timings: dict[str, list[float]] = {name: [] for name in paths}

@@ -82,6 +82,10 @@ def test_each_hub_cards_usage_snippet_walks_the_agent_from_the_hub_files(path):
         lambda match: repr(str(folder / match.group(1))),
         snippet.replace("from huggingface_sb3 import load_from_hub\n", ""),
     ).replace("range(1000)", "range(200)")
+    # The card resets unseeded; one seeded draw of the randomized dynamics keeps the test
+    # from meeting, some day, a draw under which 200 steps are short.
+    assert "obs = env.reset()" in snippet
+    snippet = snippet.replace("obs = env.reset()", "env.seed(2024)\nobs = env.reset()")
     namespace: dict = {}
     exec(compile(snippet, f"{name}/README.md", "exec"), namespace)
     # Half the claimed speed over the episode's own 200 control steps; a fall would have

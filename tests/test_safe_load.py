@@ -62,10 +62,13 @@ def trap_pickle(path: Path, marker: Path) -> None:
 
 @pytest.fixture(scope="module")
 def checkpointed(tmp_path_factory) -> Path:
-    """A run with checkpoints at 60 and 120 steps, to resume."""
+    """A run with checkpoints at 60 and 120 steps, to resume (one 28-number observation:
+    the tests build observations and statistics of that shape)."""
     root = tmp_path_factory.mktemp("checkpointed")
     result = run_script(
         "train.py",
+        "--config",
+        "minitaur-mirror",
         "-n",
         "120",
         *FAST_SAC,
@@ -166,7 +169,8 @@ def test_training_from_a_model_starts_an_empty_buffer_and_loads_no_pickle(run, t
     trap_zip(model, marker)
     buffer = run / "replay_buffer.pkl"  # where the zoo keeps one beside a model
     buffer.write_bytes(pickle.dumps(Trap(marker, "None")))
-    args = ["-i", str(model), "-n", "60", *FAST_SAC, "--eval-freq", "0", "--save-freq", "0"]
+    args = ["-i", str(model), "--config", "minitaur-mirror", "-n", "60", *FAST_SAC]
+    args += ["--eval-freq", "0", "--save-freq", "0"]
     started = run_script("train.py", *args, *TINY, cwd=tmp_path)
     assert started.returncode == 0, started.stderr
     assert not marker.exists()

@@ -68,7 +68,7 @@ def test_default_run_leaves_everything_behind(tmp_path):
     assert config["algo"] == "sac" and config["n_timesteps"] == 240
     assert config["hyperparams"]["policy_kwargs"] == {"net_arch": [256, 256]}
     assert config["hyperparams"]["learning_starts"] == 50
-    assert config["hyperparams"]["n_steps"] == 5  # the tuned Minitaur entry
+    assert config["hyperparams"]["n_steps"] == 10  # the default Minitaur entry
     assert config["normalize"] is True  # observations and rewards
     assert "train.py" in (run / "command.txt").read_text()
 
@@ -78,7 +78,8 @@ def test_default_run_leaves_everything_behind(tmp_path):
         np.testing.assert_array_equal(evaluations["ep_lengths"], 40)
 
     model = load_model(SAC, run / "best_model.zip")
-    action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
+    observation = np.zeros(model.observation_space.shape, np.float32)  # the default: 3 x 28
+    action, _ = model.predict(observation, deterministic=True)
     assert action.shape == (8,) and np.all(np.abs(action) <= 1)
     assert load_model(SAC, run / "MinitaurBulletEnv-v0.zip").num_timesteps == 240
 
@@ -174,7 +175,8 @@ def test_sbx_backend_trains_checkpoints_resumes_and_evaluates(tmp_path):
     assert result.returncode == 0, result.stderr
     run = run_dir_of(tmp_path)
     model = load_model(sbx.SAC, run / "best_model.zip")
-    action, _ = model.predict(np.zeros(28, np.float32), deterministic=True)
+    observation = np.zeros(model.observation_space.shape, np.float32)  # the default: 3 x 28
+    action, _ = model.predict(observation, deterministic=True)
     assert action.shape == (8,)
     (run / "checkpoints" / "rl_model_200_steps.zip").unlink()  # as if killed before it
     # No flag: the checkpoint's flax state is read from its msgpack member, not unpickled.
@@ -626,13 +628,17 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     tuned = load_hyperparams("sac", "MinitaurBulletEnv-v0")
     tutorial = load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="tutorial")
     assert tutorial["buffer_size"] == 10_000 and "n_steps" not in tutorial
-    assert tuned["buffer_size"] == 100_000 and tuned["n_steps"] == 5
+    assert tuned["buffer_size"] == 100_000 and tuned["n_steps"] == 10
     assert tuned["policy_kwargs"] == tutorial["policy_kwargs"]  # inherited through `base`
     assert load_hyperparams("sac", "minitaur_env:MinitaurBullet-v0") == tuned
-    # The classic ids' default is the mirror entry (two bases deep); the ids it was not
-    # measured on keep the minitaur entry it extends.
+    # The classic ids' default is the history-nstep entry (four bases deep); the ids it was
+    # not measured on keep the minitaur entry it extends.
     minitaur = load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="minitaur")
-    assert tuned == {**minitaur, "mirror": True, "gamma": 0.98, "tau": 0.02}
+    mirror = {**minitaur, "mirror": True, "gamma": 0.98, "tau": 0.02}
+    assert load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="minitaur-mirror") == mirror
+    n_steps_after = {"at": 0.5, "n_steps": 5}
+    history = {"env_kwargs": {"history": 3}, "n_steps": 10, "n_steps_after": n_steps_after}
+    assert tuned == {**mirror, **history}
     assert load_hyperparams("sac", "MinitaurBulletTrot-v0") == minitaur
     assert load_hyperparams("sac", "Acrobot-v1") == {"n_timesteps": 100000, "policy": "MlpPolicy"}
     assert load_hyperparams("sac", "Pendulum-v1")["learning_rate"] == 1e-3  # its own entry

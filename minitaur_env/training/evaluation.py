@@ -72,6 +72,18 @@ class LoadedPolicy:
             )
 
 
+def _env_kwargs_of(model_path: Path, config: dict[str, Any]) -> dict[str, Any]:
+    """The run's env kwargs; for a zip without a run's config (a Hub folder), those of the
+    zoo's ``env_kwargs.yml`` beside it, so a policy that sees three observations gets them."""
+    if "env_kwargs" in config:
+        return dict(config["env_kwargs"] or {})
+    beside = model_path.parent / "env_kwargs.yml"
+    kwargs = read_yaml(beside, "env kwargs") if beside.is_file() else {}
+    if not isinstance(kwargs, dict):
+        raise UsageError(f"{beside} does not hold env kwargs (a mapping)")
+    return kwargs
+
+
 def load_policy(
     model_path: str | Path,
     algo: str | None = None,
@@ -128,7 +140,7 @@ def load_policy(
         backend=backend,
         path=model_path,
         env_id=config.get("env"),
-        env_kwargs=dict(config.get("env_kwargs") or {}),
+        env_kwargs=_env_kwargs_of(model_path, config),
         normalizer=normalizer,
         normalization_unknown=normalizer is None and not config,
     )
