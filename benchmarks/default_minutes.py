@@ -33,15 +33,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from stable_baselines3.common.vec_env import VecNormalize
-from training_speed import learning_rate_of, measure_ppo
+from training_speed import learning_rate_of, measure_ppo, model_as_trained
 
 import minitaur_env  # noqa: F401  (registers the ids)
 from minitaur_env.training.aggregate import RunCurve
 from minitaur_env.training.config import ExperimentConfig
-from minitaur_env.training.envs import make_training_env
 from minitaur_env.training.evaluation import load_policy, playing_kwargs, run_episodes
-from minitaur_env.training.experiment import new_model
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.seeds import REPORT_SEED
 from minitaur_env.training.single_env import make_env
@@ -83,11 +80,10 @@ def training_rate(command: str, sac_steps: int, ppo_steps: int) -> float:
     # observations), one torch thread, updates from 300 steps on.
     torch.set_num_threads(1)
     config = ExperimentConfig.resolve(
-        algo, ENV, backend=backend, hyperparams={"learning_starts": 300}, device="cpu"
+        algo, ENV, backend=backend, hyperparams={"learning_starts": 300}, seed=0, device="cpu"
     )
-    env = make_training_env(ENV, n_envs=1, seed=0, env_kwargs=config.env_kwargs, vec_env="dummy")
-    env = VecNormalize(env, gamma=config.hyperparams.get("gamma", 0.99))
-    return learning_rate_of(new_model(config, env), sac_steps)
+    with model_as_trained(config) as model:
+        return learning_rate_of(model, sac_steps)
 
 
 def median_steps_to(milestone: float, patterns: list[str]) -> tuple[float, int]:

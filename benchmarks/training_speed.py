@@ -23,7 +23,10 @@ import argparse
 import os
 import subprocess
 import sys
+import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import gymnasium as gym
 import torch
@@ -33,7 +36,10 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
 import minitaur_env  # noqa: F401
-from minitaur_env.training.hyperparams import RUN_KEYS, algorithm_kwargs, load_hyperparams
+from minitaur_env.training.config import ExperimentConfig
+from minitaur_env.training.experiment import Experiment
+
+ENV = "MinitaurBulletEnv-v0"
 
 
 class _LearningPhaseTimer(BaseCallback):
@@ -61,7 +67,7 @@ def measure(
     """Env steps/s of the learning phase, timed from ``untimed`` updates in (after JIT
     warm-up)."""
     torch.set_num_threads(threads)
-    env = gym.make("MinitaurBulletEnv-v0")
+    env = gym.make(ENV)
     if backend == "sbx":
         from sbx import SAC as algorithm
 
@@ -69,44 +75,56 @@ def measure(
     else:
         algorithm = SAC
     model = algorithm("MlpPolicy", env, learning_starts=warmup, seed=0, device="cpu", **sac_kwargs)
-    return learning_rate_of(model, steps, untimed)
+    try:
+        return learning_rate_of(model, steps, untimed)
+    finally:
+        env.close()
 
 
 def learning_rate_of(model: BaseAlgorithm, steps: int, untimed: int = 200) -> float:
     """Env steps/s of an off-policy ``model``'s learning phase over ``steps`` env steps,
-    timed from ``untimed`` updates after its ``learning_starts``; closes its env."""
+    timed from ``untimed`` updates after its ``learning_starts``."""
     timer = _LearningPhaseTimer(model.learning_starts + untimed)
     model.learn(total_timesteps=model.learning_starts + untimed + steps, callback=timer)
     elapsed = time.perf_counter() - timer.started
-    model.get_env().close()
     return (model.num_timesteps - timer.steps_at_start) / elapsed
 
 
 def measure_ppo(steps: int, vec_env: str, default_threads: int, rollout: int = 0) -> float:
     """Env steps/s of PPO with the tuned Minitaur config (8 envs), rollouts and updates;
     ``rollout`` > 0 replaces the config's steps per env and rollout (a smoke run's size)."""
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    from minitaur_env.training.envs import make_training_env
-
     torch.set_num_threads(1 if vec_env == "grouped" else default_threads)  # as train.py does
-    hyperparams = load_hyperparams("ppo", "MinitaurBulletEnv-v0")
-    run = {key: hyperparams.pop(key) for key in RUN_KEYS if key in hyperparams}
+    overrides = {}
     if rollout:
-        hyperparams["n_steps"] = rollout
-        hyperparams["batch_size"] = min(hyperparams["batch_size"], rollout * run["n_envs"])
-    env = make_training_env("MinitaurBulletEnv-v0", n_envs=run["n_envs"], seed=0, vec_env=vec_env)
-    env = VecNormalize(env)
-    model = PPO(run["policy"], env, seed=0, device="cpu", **algorithm_kwargs(hyperparams))
-    steps_per_rollout = hyperparams["n_steps"] * run["n_envs"]
-    model.learn(steps_per_rollout)  # first rollout and update: start-up, not timed
-    start = time.perf_counter()
-    timed = max(steps // steps_per_rollout, 1) * steps_per_rollout
-    model.learn(timed, reset_num_timesteps=False)
-    elapsed = time.perf_counter() - start
-    env.close()
+        entry = ExperimentConfig.resolve("ppo", ENV)
+        overrides = {
+            "n_steps": rollout,
+            "batch_size": min(entry.hyperparams["batch_size"], rollout * entry.n_envs),
+        }
+    config = ExperimentConfig.resolve(
+        "ppo", ENV, hyperparams=overrides, vec_env=vec_env, seed=0, device="cpu"
+    )
+    with model_as_trained(config) as model:
+        steps_per_rollout = model.n_steps * model.n_envs
+        model.learn(steps_per_rollout)  # first rollout and update: start-up, not timed
+        start = time.perf_counter()
+        timed = max(steps // steps_per_rollout, 1) * steps_per_rollout
+        model.learn(timed, reset_num_timesteps=False)
+        elapsed = time.perf_counter() - start
     return (model.num_timesteps - steps_per_rollout) / elapsed
+
+
+@contextmanager
+def model_as_trained(config: ExperimentConfig) -> Iterator[BaseAlgorithm]:
+    """The model ``train.py`` builds for ``config`` (its envs, normalization, replay buffer
+    and policy), in a throwaway run folder; its envs are closed on leaving."""
+    with tempfile.TemporaryDirectory() as folder:
+        experiment = Experiment.create(config, folder)
+        try:
+            experiment.build()
+            yield experiment.model
+        finally:
+            experiment.close()
 
 
 def torch_default_threads() -> int:
@@ -118,7 +136,7 @@ def torch_default_threads() -> int:
 
 
 def replay_buffer_bytes(size: int = 1_000_000) -> int:
-    env = gym.make("MinitaurBulletEnv-v0")
+    env = gym.make(ENV)
     buffer = ReplayBuffer(size, env.observation_space, env.action_space, device="cpu")
     env.close()
     arrays = (buffer.observations, buffer.next_observations, buffer.actions, buffer.rewards)
@@ -160,7 +178,7 @@ def main() -> None:
         print(f"{name}: {rate:.1f} env steps/s; ratio {rate / baseline:.2f}x the defaults")
     dummy = measure_ppo(args.ppo_steps, "dummy", default_threads, args.ppo_rollout)
     grouped = measure_ppo(args.ppo_steps, "grouped", default_threads, args.ppo_rollout)
-    rollout = args.ppo_rollout or load_hyperparams("ppo", "MinitaurBulletEnv-v0")["n_steps"]
+    rollout = args.ppo_rollout or ExperimentConfig.resolve("ppo", ENV).hyperparams["n_steps"]
     print(
         f"PPO, tuned config (8 envs, {rollout}-step rollouts, 10 epochs): DummyVecEnv {dummy:.0f} "
         f"env steps/s; GroupedSubprocVecEnv (2 processes, 1 torch thread) {grouped:.0f}; "
