@@ -9,7 +9,8 @@ in one process and in turns:
   MinitaurBulletEnv-v0, deterministic, one env (as a run's evaluation plays them);
 - training: PPO's default entry (8 envs in ``GroupedSubprocVecEnv``, one torch thread,
   as ``train.py`` runs it) and SAC's default entry as ``train.py`` builds it (its
-  observations, replay buffer and update pattern; one torch thread; SB3 and SBX).
+  observations, replay buffer and update pattern; one torch thread; SB3 and SBX), and
+  each candidate for SAC's default: the same entry with its ``--hyperparams``.
 
 It prints what evaluations cost each default command over its whole budget at each
 ``--settings FREQ:EPISODES`` (10000:20 were the flags' defaults until 2026-11-28), and
@@ -30,6 +31,7 @@ import argparse
 import time
 from glob import glob
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -48,12 +50,24 @@ RESULTS = REPO / "benchmarks" / "results"
 ENV = "MinitaurBulletEnv-v0"
 SHIPPED = {algo: REPO / "pretrained" / algo / f"{ENV}_1" / f"{ENV}.zip" for algo in ("sac", "ppo")}
 WALKS = 15.0
-# Each default command: its algorithm and backend, and the kept runs of its entry (the
-# benchmark table's rows, benchmarks/tables.yml).
+
+
+class Command(NamedTuple):
+    algo: str
+    backend: str
+    hyperparams: dict[str, Any]  # the command's --hyperparams
+    kept_runs: list[str]  # under benchmarks/results: the runs it was measured by
+
+
+# Each default command, then each candidate for a default, with the kept runs of its
+# entry (the benchmark table's rows, benchmarks/tables.yml). PPO's is the reference.
 COMMANDS = {
-    "python train.py": ("sac", "sb3", ["sb3-h3-n10to5/seed*"]),
-    "python train.py --backend sbx": ("sac", "sbx", ["sbx-h3-n10to5/seed*"]),
-    "python train.py --algo ppo": ("ppo", "sb3", ["ppo-lin/seed*"]),
+    "python train.py": Command("sac", "sb3", {}, ["sb3-h3-n10to5/seed*"]),
+    "python train.py --backend sbx": Command("sac", "sbx", {}, ["sbx-h3-n10to5/seed*"]),
+    "python train.py --hyperparams gradient_steps=4": Command(
+        "sac", "sb3", {"gradient_steps": 4}, ["sb3-gs4/seed*"]
+    ),
+    "python train.py --algo ppo": Command("ppo", "sb3", {}, ["ppo-lin/seed*"]),
 }
 
 
@@ -73,14 +87,19 @@ def evaluation_rate(algo: str, episodes: int) -> tuple[float, int]:
 
 
 def training_rate(command: str, sac_steps: int, ppo_steps: int) -> float:
-    algo, backend, _ = COMMANDS[command]
+    algo, backend, hyperparams, _ = COMMANDS[command]
     if algo == "ppo":
         return measure_ppo(ppo_steps, "grouped", 1)
-    # The default entry's own model (history, n-step returns, mirrored replay, normalized
-    # observations), one torch thread, updates from 300 steps on.
+    # The entry's own model (history, n-step returns, mirrored replay, normalized
+    # observations) with the command's settings, one torch thread, updates from 300 steps on.
     torch.set_num_threads(1)
     config = ExperimentConfig.resolve(
-        algo, ENV, backend=backend, hyperparams={"learning_starts": 300}, seed=0, device="cpu"
+        algo,
+        ENV,
+        backend=backend,
+        hyperparams={**hyperparams, "learning_starts": 300},
+        seed=0,
+        device="cpu",
     )
     with model_as_trained(config) as model:
         return learning_rate_of(model, sac_steps)
@@ -113,8 +132,8 @@ class Pricing:
     """Minutes of a default command's steps at the measured rates."""
 
     def __init__(self, command: str, train_rate: float, eval_rate: float) -> None:
-        algo, backend, _ = COMMANDS[command]
-        self.config = ExperimentConfig.resolve(algo, ENV, backend=backend)
+        algo, backend, hyperparams, _ = COMMANDS[command]
+        self.config = ExperimentConfig.resolve(algo, ENV, backend=backend, hyperparams=hyperparams)
         self.random_steps = int(self.config.hyperparams.get("learning_starts", 0))
         self.train_rate, self.eval_rate = train_rate, eval_rate
 
@@ -155,7 +174,7 @@ def main() -> None:
             f"{rate:.0f} env steps/s"
         )
     prices = {}
-    for command, (algo, _, _) in COMMANDS.items():
+    for command, (algo, *_) in COMMANDS.items():
         rate = training_rate(command, args.sac_steps, args.ppo_steps)
         print(f"training, {command}: {rate:.0f} env steps/s")
         prices[command] = Pricing(command, rate, eval_rates[algo])
@@ -185,7 +204,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|")
     rows = {}
     for command, price in prices.items():
-        steps, runs = median_steps_to(WALKS, COMMANDS[command][2])
+        steps, runs = median_steps_to(WALKS, COMMANDS[command].kept_runs)
         rows[command] = (steps, runs, price.minutes(steps), price.minutes(price.config.n_timesteps))
     ppo = rows["python train.py --algo ppo"]
     for command, (steps, runs, to_walk, whole) in rows.items():

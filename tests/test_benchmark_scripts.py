@@ -464,7 +464,12 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
         )[0]
         for algo in ("SAC", "PPO")
     }
-    commands = ("python train.py", "python train.py --backend sbx", "python train.py --algo ppo")
+    commands = (
+        "python train.py",
+        "python train.py --backend sbx",
+        "python train.py --hyperparams gradient_steps=4",
+        "python train.py --algo ppo",
+    )
     rows = re.findall(
         r"^\| `(.*)` \| (\d+)k \| ([0-9.]+) \| (\d+)k x (\d+) \| ([0-9.]+) \| (\d+)% \|$",
         result.stdout,
@@ -494,12 +499,18 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
         re.M,
     )
     assert [wait[0] for wait in waits] == list(commands)
-    assert [(wait[1], wait[2]) for wait in waits] == [("10", "10"), ("10", "10"), ("25", "10")]
+    assert [(wait[1], wait[2]) for wait in waits] == [("10", "10")] * 3 + [("25", "10")]
     module = benchmark_module("default_minutes")
+    # A candidate is priced with its own settings, the default with the entry's.
+    updates = {
+        command: module.Pricing(command, 1.0, 1.0).config.hyperparams["gradient_steps"]
+        for command in commands[:3]
+    }
+    assert updates == dict(zip(commands[:3], (8, 8, 4), strict=True))
     ppo = waits[-1]
     assert float(ppo[6]) == 1.0 and float(ppo[8]) == 1.0
     for command, _, _, runs, steps, to_walk, ratio, whole, whole_ratio in waits:
-        median, kept = module.median_steps_to(15.0, module.COMMANDS[command][2])
+        median, kept = module.median_steps_to(15.0, module.COMMANDS[command].kept_runs)
         assert int(runs) == kept >= 3 and int(steps) == round(median / 1000)
         assert 0 < float(to_walk) < float(whole)
         assert float(ratio) == pytest.approx(float(to_walk) / float(ppo[5]), rel=0.03)
