@@ -62,10 +62,13 @@ class Command(NamedTuple):
 # Each default command, then each candidate for a default, with the kept runs of its
 # entry (the benchmark table's rows, benchmarks/tables.yml). PPO's is the reference.
 COMMANDS = {
-    "python train.py": Command("sac", "sb3", {}, ["sb3-h3-n10to5/seed*"]),
-    "python train.py --backend sbx": Command("sac", "sbx", {}, ["sbx-h3-n10to5/seed*"]),
-    "python train.py --hyperparams gradient_steps=4": Command(
-        "sac", "sb3", {"gradient_steps": 4}, ["sb3-gs4/seed*"]
+    "python train.py": Command("sac", "sb3", {}, ["sb3-gs4/seed*"]),
+    # the default until 2026-12-07 (minitaur-history-nstep): twice the updates
+    "python train.py --hyperparams gradient_steps=8": Command(
+        "sac", "sb3", {"gradient_steps": 8}, ["sb3-h3-n10to5/seed*"]
+    ),
+    "python train.py --backend sbx --hyperparams gradient_steps=8": Command(
+        "sac", "sbx", {"gradient_steps": 8}, ["sbx-h3-n10to5/seed*"]
     ),
     "python train.py --algo ppo": Command("ppo", "sb3", {}, ["ppo-lin/seed*"]),
 }

@@ -466,8 +466,8 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
     }
     commands = (
         "python train.py",
-        "python train.py --backend sbx",
-        "python train.py --hyperparams gradient_steps=4",
+        "python train.py --hyperparams gradient_steps=8",
+        "python train.py --backend sbx --hyperparams gradient_steps=8",
         "python train.py --algo ppo",
     )
     rows = re.findall(
@@ -506,7 +506,7 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
         command: module.Pricing(command, 1.0, 1.0).config.hyperparams["gradient_steps"]
         for command in commands[:3]
     }
-    assert updates == dict(zip(commands[:3], (8, 8, 4), strict=True))
+    assert updates == dict(zip(commands[:3], (4, 8, 8), strict=True))
     ppo = waits[-1]
     assert float(ppo[6]) == 1.0 and float(ppo[8]) == 1.0
     for command, _, _, runs, steps, to_walk, ratio, whole, whole_ratio in waits:

@@ -763,6 +763,7 @@ def test_an_entropy_decay_that_would_do_nothing_is_refused(algo, hyperparams, me
         ("sac", "minitaur-pink"),
         ("sac", "minitaur-history"),
         ("sac", "minitaur-history-nstep"),
+        ("sac", "minitaur-half-updates"),
         ("tqc", None),
         ("crossq", None),
     ],
@@ -791,21 +792,26 @@ def test_the_minitaur_entries_build_and_train(tmp_path, algo, name):
     assert colored == (1.0 if name == "minitaur-pink" else 0.0)
     buffer = type(experiment.model.replay_buffer).__name__
     assert (buffer == "MirroredReplayBuffer") == bool(entry.get("mirror"))
-    # None: the env's own entry, minitaur-history-nstep
-    history_entries = [
+    # None: the env's own entry, minitaur-half-updates
+    nstep_entries = [
         ("sac", None),
-        ("sac", "minitaur-history"),
         ("sac", "minitaur-history-nstep"),
+        ("sac", "minitaur-half-updates"),
     ]
+    history_entries = [("sac", "minitaur-history"), *nstep_entries]
     mirror_entries = [("sac", "minitaur-mirror"), ("sac", "minitaur-pink"), *history_entries]
     assert bool(entry.get("mirror")) == ((algo, name) in mirror_entries)
     # the entry's history reaches the env, beside the env settings given here
     frames = 3 if (algo, name) in history_entries else 1
     assert experiment.model.observation_space.shape == (28 * frames,)
     assert config.env_kwargs == {"max_episode_steps": 40, **({"history": 3} if frames > 1 else {})}
-    if (algo, name) in [("sac", None), ("sac", "minitaur-history-nstep")]:
+    if (algo, name) in nstep_entries:
         # 10-step returns handed over to 5 at step 32, half the run
         assert entry["n_steps"] == 10 and experiment.model.replay_buffer.n_steps == 5
+    # half the updates: 4 gradient steps every 8 env steps; the entry before it, 8
+    half = (algo, name) in [("sac", None), ("sac", "minitaur-half-updates")]
+    if algo == "sac":
+        assert experiment.model.gradient_steps == (4 if half else 8) == entry["gradient_steps"]
 
 
 @pytest.mark.parametrize(
@@ -991,6 +997,39 @@ def test_mirror_stores_each_transition_and_its_mirror_image_and_resumes_without_
     assert np.array_equal(
         buffer.observations[stored, 1], mirror_observation(buffer.observations[stored, 0])
     )
+
+
+def test_mirror_with_several_envs_keeps_each_envs_image_in_its_own_column(tmp_path):
+    from minitaur_env.robot import mirror_leg_action, mirror_observation
+    from minitaur_env.training.replay_buffer import MirroredReplayBuffer
+
+    config = ExperimentConfig.resolve(
+        "sac",
+        "MinitaurBulletEnv-v0",  # the default entry: three observations, 10-step returns
+        hyperparams={**SMALL_SAC, "n_envs": 3},
+        n_timesteps=150,
+        env_kwargs={"max_episode_steps": 30},
+        eval_freq=0,
+        save_freq=0,
+        vec_env="grouped",
+        device="cpu",
+    )
+    experiment = Experiment.create(config, tmp_path, verbose=0)
+    assert experiment.run().status == "completed"
+    buffer = experiment.model.replay_buffer
+    assert isinstance(buffer, MirroredReplayBuffer) and buffer.observations.shape[1] == 6
+    stored = np.s_[: buffer.pos]
+    frames = buffer.observations[stored].reshape((buffer.pos, 6, 3, -1))
+    for env in range(3):  # env k's images are column 3 + k, nobody else's
+        assert np.array_equal(frames[:, 3 + env], mirror_observation(frames[:, env]))
+        assert np.array_equal(
+            buffer.actions[stored, 3 + env], mirror_leg_action(buffer.actions[stored, env])
+        )
+        assert np.array_equal(buffer.dones[stored, 3 + env], buffer.dones[stored, env])
+    # the control: the envs are seeded apart, so a column paired with another env's
+    # images would not match
+    assert not np.array_equal(frames[:, 4], mirror_observation(frames[:, 0]))
+    assert buffer.dones[stored, :3].any()  # episodes ended inside the run
 
 
 def test_mirror_images_each_frame_of_a_stack_of_classic_observations():
