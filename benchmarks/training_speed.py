@@ -50,7 +50,8 @@ class _LearningPhaseTimer(BaseCallback):
         self.steps_at_start = 0
 
     def _on_step(self) -> bool:
-        if self.num_timesteps == self.start_at:
+        # >=: with several envs the count moves n_envs at a time and may step over start_at
+        if not self.started and self.num_timesteps >= self.start_at:
             self.started = time.perf_counter()
             self.steps_at_start = self.num_timesteps
         return True
@@ -86,6 +87,8 @@ def learning_rate_of(model: BaseAlgorithm, steps: int, untimed: int = 200) -> fl
     timed from ``untimed`` updates after its ``learning_starts``."""
     timer = _LearningPhaseTimer(model.learning_starts + untimed)
     model.learn(total_timesteps=model.learning_starts + untimed + steps, callback=timer)
+    if not timer.started or model.num_timesteps == timer.steps_at_start:
+        raise RuntimeError(f"no learning step was timed ({steps} steps after {timer.start_at})")
     elapsed = time.perf_counter() - timer.started
     return (model.num_timesteps - timer.steps_at_start) / elapsed
 

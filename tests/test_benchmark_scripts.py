@@ -468,6 +468,7 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
         "python train.py",
         "python train.py --hyperparams gradient_steps=8",
         "python train.py --backend sbx --hyperparams gradient_steps=8",
+        "python train.py --n-envs 8 --hyperparams train_freq=1",
         "python train.py --algo ppo",
     )
     rows = re.findall(
@@ -499,14 +500,16 @@ def test_default_minutes_prices_evaluations_and_the_wait_for_a_walking_minitaur(
         re.M,
     )
     assert [wait[0] for wait in waits] == list(commands)
-    assert [(wait[1], wait[2]) for wait in waits] == [("10", "10")] * 3 + [("25", "10")]
+    assert [(wait[1], wait[2]) for wait in waits] == [("10", "10")] * 4 + [("25", "10")]
     module = benchmark_module("default_minutes")
     # A candidate is priced with its own settings, the default with the entry's.
     updates = {
         command: module.Pricing(command, 1.0, 1.0).config.hyperparams["gradient_steps"]
-        for command in commands[:3]
+        for command in commands[:4]
     }
-    assert updates == dict(zip(commands[:3], (4, 8, 8), strict=True))
+    assert updates == dict(zip(commands[:4], (4, 8, 8, 4), strict=True))
+    envs = [module.Pricing(command, 1.0, 1.0).config.n_envs for command in commands[:4]]
+    assert envs == [1, 1, 1, 8]
     ppo = waits[-1]
     assert float(ppo[6]) == 1.0 and float(ppo[8]) == 1.0
     for command, _, _, runs, steps, to_walk, ratio, whole, whole_ratio in waits:
