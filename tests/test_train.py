@@ -631,14 +631,16 @@ def test_hyperparameter_entries_resolve_with_bases_and_named_configs():
     assert tuned["buffer_size"] == 100_000 and tuned["n_steps"] == 10
     assert tuned["policy_kwargs"] == tutorial["policy_kwargs"]  # inherited through `base`
     assert load_hyperparams("sac", "minitaur_env:MinitaurBullet-v0") == tuned
-    # The classic ids' default is the history-nstep entry (four bases deep); the ids it was
+    # The classic ids' default is the half-updates entry (five bases deep); the ids it was
     # not measured on keep the minitaur entry it extends.
     minitaur = load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="minitaur")
     mirror = {**minitaur, "mirror": True, "gamma": 0.98, "tau": 0.02}
     assert load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="minitaur-mirror") == mirror
     n_steps_after = {"at": 0.5, "n_steps": 5}
     history = {"env_kwargs": {"history": 3}, "n_steps": 10, "n_steps_after": n_steps_after}
-    assert tuned == {**mirror, **history}
+    nstep = {**mirror, **history}
+    assert load_hyperparams("sac", "MinitaurBulletEnv-v0", entry="minitaur-history-nstep") == nstep
+    assert tuned == {**nstep, "gradient_steps": 4} and nstep["gradient_steps"] == 8
     assert load_hyperparams("sac", "MinitaurBulletTrot-v0") == minitaur
     assert load_hyperparams("sac", "Acrobot-v1") == {"n_timesteps": 100000, "policy": "MlpPolicy"}
     assert load_hyperparams("sac", "Pendulum-v1")["learning_rate"] == 1e-3  # its own entry
