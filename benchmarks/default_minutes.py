@@ -70,8 +70,9 @@ COMMANDS = {
     "python train.py --backend sbx --hyperparams gradient_steps=8": Command(
         "sac", "sbx", {"gradient_steps": 8}, ["sbx-h3-n10to5/seed*"]
     ),
-    # a candidate: the default's updates on 8 envs stepped together, 4 updates per 8
-    # transitions as before (GroupedSubprocVecEnv, as train.py runs several envs)
+    # a candidate, not chosen (it ended lower; docs/results.md): the default's updates on
+    # 8 envs stepped together, 4 updates per 8 transitions as before (GroupedSubprocVecEnv,
+    # as train.py runs several envs)
     "python train.py --n-envs 8 --hyperparams train_freq=1": Command(
         "sac", "sb3", {"n_envs": 8, "train_freq": 1}, ["sb3-gs4-8env/seed*"]
     ),
