@@ -1129,3 +1129,99 @@ def test_mirror_discounts_its_returns_with_the_algorithms_own_gamma(algo):
     model = experiment_module.new_model(config, env)
     assert model.replay_buffer.gamma == model.gamma
     env.close()
+
+
+class LastWeights(BaseCallback):
+    """The policy's weights when training ends (after its last update), and a Ctrl-C at
+    ``interrupt_at``."""
+
+    def __init__(self, interrupt_at: int | None = None) -> None:
+        super().__init__()
+        self.interrupt_at = interrupt_at
+        self.weights: dict[str, np.ndarray] = {}
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps == self.interrupt_at:
+            raise KeyboardInterrupt
+        return True
+
+    def _on_training_end(self) -> None:
+        self.weights = _state(self.model)
+
+
+AVERAGING = {"average_weights": {"start": 0.5, "every": 40}}  # 120 and 160 of 200, and 200
+
+
+def _state(model) -> dict[str, np.ndarray]:
+    return {name: t.detach().cpu().numpy().copy() for name, t in model.policy.state_dict().items()}
+
+
+def _mean_with_kept(run: RunFolder, final: dict[str, np.ndarray], kept=(120, 160)) -> dict:
+    sets = [dict(np.load(run.policy_weights(step))) for step in kept] + [final]
+    return {name: np.mean([w[name] for w in sets], axis=0) for name in final}
+
+
+def _assert_same_weights(model, expected: dict[str, np.ndarray]) -> None:
+    for name, weights in _state(model).items():
+        np.testing.assert_allclose(weights, expected[name], rtol=1e-5, atol=1e-6, err_msg=name)
+
+
+def test_average_weights_makes_the_final_policy_the_mean_of_the_end_of_training(tmp_path):
+    last = LastWeights()
+    result = pendulum(
+        tmp_path / "avg", hyperparams=AVERAGING, n_timesteps=200, callbacks=[last]
+    ).run()
+    run = result.run
+    assert result.status == "completed"
+    assert [steps for steps, _ in run.saved_policy_weights()] == [160, 120]
+    final = load_model(SAC, run.final_model, device="cpu")
+    _assert_same_weights(final, _mean_with_kept(run, last.weights))
+    # The negative control: the average is not the last update's weights.
+    assert not np.allclose(_state(final)["actor.mu.weight"], last.weights["actor.mu.weight"])
+    # The control: without the key the final model is the last update's weights.
+    plain_last = LastWeights()
+    plain = pendulum(tmp_path / "plain", n_timesteps=200, callbacks=[plain_last]).run().run
+    assert not plain.saved_policy_weights()
+    _assert_same_weights(load_model(SAC, plain.final_model, device="cpu"), plain_last.weights)
+
+
+def test_a_resumed_run_averages_its_own_branch_and_refuses_a_missing_set(tmp_path):
+    cut = LastWeights(interrupt_at=130)
+    result = pendulum(tmp_path, hyperparams=AVERAGING, n_timesteps=200, callbacks=[cut]).run()
+    run = result.run
+    assert result.status == "interrupted" and result.num_timesteps == 130
+    assert [steps for steps, _ in run.saved_policy_weights()] == [120]
+    # What a kill -9 after the weights at 160, before any checkpoint after 130, leaves.
+    stale = {name: np.zeros_like(w) for name, w in np.load(run.policy_weights(120)).items()}
+    np.savez(run.policy_weights(160), **stale)
+    last = LastWeights()
+    assert Experiment.resume(run.path, verbose=0, callbacks=[last]).run().status == "completed"
+    assert not np.allclose(np.load(run.policy_weights(160))["actor.mu.weight"], 0.0)
+    final = load_model(SAC, run.final_model, device="cpu")
+    _assert_same_weights(final, _mean_with_kept(run, last.weights))
+
+    # A set gone missing: the run fails in one line rather than average fewer.
+    run.policy_weights(120).unlink()
+    failed = Experiment.resume(run.path, n_timesteps=240, verbose=0).run()  # 120, 160, 200
+    assert failed.status == "failed"
+    assert "weights at steps [120] are not in" in failed.message
+    assert "\n" not in failed.message
+
+
+@pytest.mark.parametrize(
+    ("hyperparams", "backend", "message"),
+    [
+        ({"average_weights": {"start": 1.0, "every": 40}}, "sb3", r"\.start must be a fraction"),
+        ({"average_weights": {"start": 0.5, "every": 0}}, "sb3", r"\.every must be a whole"),
+        ({"average_weights": {"start": 0.5}}, "sb3", "expected {start: "),
+        ({"average_weights": {"start": 0.9, "every": 500}}, "sb3", "no multiple of 500 steps"),
+        ({"average_weights": {"start": 0.5, "every": 40}}, "sbx", "--backend sbx keeps"),
+    ],
+)
+def test_average_weights_bad_values_are_one_line(hyperparams, backend, message):
+    if backend == "sbx":
+        needs("sbx")
+    with pytest.raises(UsageError, match=message):
+        ExperimentConfig.resolve(
+            "sac", "Pendulum-v1", backend=backend, n_timesteps=1000, hyperparams=hyperparams
+        ).validate()
