@@ -9,6 +9,7 @@ import re
 import shutil
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -52,14 +53,20 @@ def finished_run(tmp_path_factory):
     return root / "logs" / "sac" / "MinitaurBulletEnv-v0_1"
 
 
-def keep_runs(run: Path, into: Path, *flags: str) -> None:
-    """benchmarks/keep_runs.py in this process (its refusal and its use as a script are
-    tested below): a script's start-up costs seconds, six times over."""
+def benchmark_script(name: str) -> Any:
+    """benchmarks/<name>.py as a module, to run in this process: a script's start-up costs
+    seconds, and each script's use as a script is tested once."""
     sys.path.insert(0, str(REPO / "benchmarks"))
     try:
-        importlib.import_module("keep_runs").main([str(run), "--into", str(into), *flags])
+        return importlib.import_module(name)
     finally:
         sys.path.remove(str(REPO / "benchmarks"))
+
+
+def keep_runs(run: Path, into: Path, *flags: str) -> None:
+    """benchmarks/keep_runs.py in this process (its refusal and its use as a script are
+    tested below)."""
+    benchmark_script("keep_runs").main([str(run), "--into", str(into), *flags])
 
 
 def test_keep_runs_keeps_what_judging_again_needs_and_nothing_bulky(finished_run, tmp_path):
@@ -578,11 +585,7 @@ def test_keep_runs_resumable_keeps_what_a_resume_needs_and_it_goes_on(finished_r
 def test_a_branch_goes_on_from_its_checkpoint_with_the_changed_settings(
     finished_run, tmp_path, capsys
 ):
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        branch_run = importlib.import_module("branch_run")
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    branch_run = benchmark_script("branch_run")
     branch = tmp_path / "branch" / "MinitaurBulletEnv-v0_1"
     change = ["--hyperparams", "target_entropy=-1", "mirror=null"]
     branch_run.main([str(finished_run), "--at", "80", "--into", str(branch), *change])
@@ -666,11 +669,7 @@ def _ppo_run(root: Path, **hyperparams) -> RunFolder:
 
 
 def test_an_averaged_copy_of_a_run_is_the_run_the_key_would_have_made(tmp_path, capsys):
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        average_run = importlib.import_module("average_run")
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
+    average_run = benchmark_script("average_run")
     plain = _ppo_run(tmp_path / "plain")
     keyed = _ppo_run(tmp_path / "keyed", average_weights={"start": 0.5, "every": 40})
     copy = tmp_path / "averaged" / "Pendulum-v1_1"
@@ -696,12 +695,7 @@ def test_an_averaged_copy_of_a_run_is_the_run_the_key_would_have_made(tmp_path, 
         plain.final_model
     )
     # keep_runs --resumable keeps the weights a resumed run averages at its end.
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        keep_runs = importlib.import_module("keep_runs")
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
-    kept = keep_runs.resume_files(keyed)
+    kept = benchmark_script("keep_runs").resume_files(keyed)
     assert keyed.policy_weights(120) in kept and keyed.policy_weights(160) in kept
     # Refusals, one line each, leaving nothing behind.
     capsys.readouterr()  # the trainings' progress lines
