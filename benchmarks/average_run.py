@@ -98,9 +98,7 @@ def main(argv: list[str] | None = None) -> None:
         copy = average_run(RunFolder(args.run), args.start, args.every, args.into, command)
     except UsageError as error:
         parser.error(str(error))
-    print(
-        f"{copy.final_model}: the mean of the weights at {args.every}-step steps from {args.start}"
-    )
+    print(f"{copy.final_model}: the policy averaged every {args.every} steps from {args.start}")
 
 
 if __name__ == "__main__":
