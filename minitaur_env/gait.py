@@ -22,14 +22,17 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from minitaur_env.checks import checked_action, from_mapping, integer, number
-from minitaur_env.env import MAX_HISTORY, MinitaurBulletEnv, with_history
+from minitaur_env.checks import boolean, checked_action, from_mapping, integer, number
+from minitaur_env.env import CONTROL_TIME_STEP, MAX_HISTORY, MinitaurBulletEnv, with_history
 from minitaur_env.robot import NUM_MOTORS
 
 # Front-left and back-right legs swing together, back-left and front-right half a cycle
 # later (the leg order of the action: front-left, back-left, front-right, back-right).
 TROT_PHASE_OFFSETS = np.array([0.0, math.pi, math.pi, 0.0])
 MODULATION_ENTRIES = 3  # frequency, extension amplitude, swing amplitude
+# The observed control step is in units of the classic one (10 ms); no drawn step reaches
+# this bound, which only sizes the observation space.
+CONTROL_STEP_BOUND = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,19 +89,35 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
 
     Action ``Box(-1, 1, (11,))``: entries 0-7 are residuals on the env's leg-model
     action (same order), 8-10 modulate the frequency, the extension and the swing
-    amplitude. Observation: the env's, then ``sin`` and ``cos`` of the generator's phase.
+    amplitude. Observation: the env's, then ``sin`` and ``cos`` of the generator's phase,
+    then with ``observe_control_step`` the episode's control step in units of 10 ms.
     ``info`` gains ``gait_phase`` (rad) and ``gait_frequency`` (Hz).
+
+    Under randomized timing (3-20 ms in Tan et al.'s preset) the same action moves the
+    robot up to six times farther on one episode than on another, and the phase history
+    cannot tell a long step from a fast gait; a robot's controller knows its own loop
+    period, so ``observe_control_step`` lets the policy know it too. The latency stays
+    hidden, as on the robot.
     """
 
-    def __init__(self, env: gym.Env, trot: Trot | Mapping[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        trot: Trot | Mapping[str, Any] | None = None,
+        observe_control_step: bool = False,
+    ) -> None:
         super().__init__(env)
         self.trot = Trot.coerce(trot)
+        self.observe_control_step = boolean("observe_control_step", observe_control_step)
         self.action_space = spaces.Box(-1.0, 1.0, (NUM_MOTORS + MODULATION_ENTRIES,), np.float32)
         inner = env.observation_space
         assert isinstance(inner, spaces.Box)
+        low, high = [-1.0, -1.0], [1.0, 1.0]
+        if self.observe_control_step:
+            low, high = [*low, 0.0], [*high, CONTROL_STEP_BOUND]
         self.observation_space = spaces.Box(
-            np.concatenate([inner.low, [-1.0, -1.0]]).astype(np.float32),
-            np.concatenate([inner.high, [1.0, 1.0]]).astype(np.float32),
+            np.concatenate([inner.low, low]).astype(np.float32),
+            np.concatenate([inner.high, high]).astype(np.float32),
             dtype=np.float32,
         )
         self._phase = 0.0
@@ -133,17 +152,21 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
         return np.clip(generated + residual, -1.0, 1.0), trot.frequency * float(scale[0])
 
     def _observe(self, observation: np.ndarray) -> np.ndarray:
-        phase = np.array([math.sin(self._phase), math.cos(self._phase)], np.float32)
-        return np.concatenate([observation, phase]).astype(np.float32)
+        extra = [math.sin(self._phase), math.cos(self._phase)]
+        if self.observe_control_step:
+            extra.append(self.env.unwrapped.dt / CONTROL_TIME_STEP)
+        return np.concatenate([observation, extra]).astype(np.float32)
 
 
 def make_trotting_env(
     render_mode: str | None = None,
     gait: Trot | Mapping[str, Any] | None = None,
     history: int = 1,
+    observe_control_step: bool = False,
     **kwargs: Any,
 ) -> gym.Env:
-    """``MinitaurBulletEnv(render_mode, **kwargs)`` driven through a :class:`TrottingGait`.
+    """``MinitaurBulletEnv(render_mode, **kwargs)`` driven through a :class:`TrottingGait`
+    (``observe_control_step``: whether the observation ends with the control step).
 
     ``history`` (1 to 16): the policy sees the last ``history`` observations, newest last,
     flattened into one vector (the first observation repeated at reset). Under latency
@@ -151,7 +174,9 @@ def make_trotting_env(
     classic observation has no base velocity.
     """
     integer("history", history, 1, MAX_HISTORY)  # before the simulator is built
-    return with_history(TrottingGait(MinitaurBulletEnv(render_mode, **kwargs), gait), history)
+    boolean("observe_control_step", observe_control_step)
+    env = MinitaurBulletEnv(render_mode, **kwargs)
+    return with_history(TrottingGait(env, gait, observe_control_step), history)
 
 
 def has_gait_prior(env_id: str) -> bool:

@@ -98,6 +98,28 @@ def test_the_policy_sets_the_frequency_and_the_phase_follows_the_episodes_contro
     env.close()
 
 
+def test_observe_control_step_ends_each_observation_with_the_episodes_drawn_step():
+    env = gym.make("MinitaurBulletTrotRandomized-v0", history=2, observe_control_step=True)
+    seen = set()
+    for seed in range(4):
+        observation, _ = env.reset(seed=seed)
+        frames = observation.reshape(2, -1)
+        assert frames.shape[1] == 31  # the 28 sensors, sin and cos of the phase, the step
+        observation, *_ = env.step(STILL)
+        for frame in (*frames, *observation.reshape(2, -1)):
+            assert frame[-1] == pytest.approx(env.unwrapped.dt / 0.01)
+        assert env.observation_space.contains(observation)
+        seen.add(env.unwrapped.dt)
+    assert len(seen) > 1  # drawn per episode, so the policy can tell the episodes apart
+    env.close()
+    # Negative control: without it the observation ends with the phase, as before.
+    plain = gym.make("MinitaurBulletTrotRandomized-v0")
+    assert plain.observation_space.shape == (30,)
+    plain.close()
+    with pytest.raises(ValueError, match=r"^observe_control_step must be True or False, got 1$"):
+        gym.make("MinitaurBulletTrotRandomized-v0", observe_control_step=1)
+
+
 def test_the_amplitudes_the_policy_asks_for_reach_the_legs():
     gait = TrottingGait(MinitaurBulletEnv(), {"extension": 0.4, "swing": 0.2, "modulation": 0.5})
     gait.reset(seed=0)
