@@ -36,9 +36,8 @@ def run_folders(path: Path) -> list[RunFolder]:
 
 
 def resume_files(run: RunFolder) -> list[Path]:
-    """The newest checkpoint's files (model, statistics and their JSON, replay buffer), the
-    best model's and the policy weights kept for a final average: what ``--resume`` reads,
-    what it compares new evaluations with, and what it averages at the end."""
+    """The newest checkpoint's files (model, statistics and their JSON, replay buffer) and
+    the best model's: what ``--resume`` reads, and what it compares new evaluations with."""
     checkpoints = run.checkpoints()
     if not checkpoints:
         sys.exit(f"keep_runs.py: {run} has no checkpoint to resume from")
@@ -47,7 +46,6 @@ def resume_files(run: RunFolder) -> list[Path]:
     best = [run.best_model, run.vecnormalize_beside(run.best_model)]
     candidates = [model, statistics, normalizer_json(statistics), run.replay_buffer(steps), *best]
     candidates.append(normalizer_json(best[1]))
-    candidates += [path for kept, path in run.saved_policy_weights() if kept <= steps]
     return [path for path in candidates if path.is_file()]
 
 

@@ -14,14 +14,11 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from stable_baselines3 import PPO
 
 from minitaur_env.ship import main as ship_main
-from minitaur_env.training import Experiment, ExperimentConfig, UsageError, shipping
+from minitaur_env.training import UsageError, shipping
 from minitaur_env.training.aggregate import GroupSummary, RunCurve, iqm_with_ci
-from minitaur_env.training.algorithms import load_model
 from minitaur_env.training.run_folder import RunFolder
-from minitaur_env.training.safe_load import embedded_statistics
 from tests.scripts import REPO, TINY, error_lines, run_main, run_script
 
 # Trains, plays episodes or starts processes: the full suite's, not the edit loop's.
@@ -645,68 +642,3 @@ def test_a_branch_goes_on_from_its_checkpoint_with_the_changed_settings(
     assert error_lines(script) == [
         f"branch_run.py: error: {tmp_path} is not a run folder (no config.yml) (see --help)"
     ]
-
-
-def _ppo_run(root: Path, **hyperparams) -> RunFolder:
-    config = ExperimentConfig.resolve(
-        "ppo",
-        "Pendulum-v1",
-        n_timesteps=200,  # 7 rollouts of 32: the last update ends at 224
-        eval_freq=0,
-        save_freq=40,
-        vec_env="dummy",
-        device="cpu",
-        hyperparams={
-            "n_steps": 32,
-            "batch_size": 32,
-            "policy_kwargs": {"net_arch": [8]},
-            **hyperparams,
-        },
-    )
-    result = Experiment.create(config, root, verbose=0).run()
-    assert result.status == "completed"
-    return result.run
-
-
-def test_an_averaged_copy_of_a_run_is_the_run_the_key_would_have_made(tmp_path, capsys):
-    average_run = benchmark_script("average_run")
-    plain = _ppo_run(tmp_path / "plain")
-    keyed = _ppo_run(tmp_path / "keyed", average_weights={"start": 0.5, "every": 40})
-    copy = tmp_path / "averaged" / "Pendulum-v1_1"
-    average_run.main([str(plain.path), "--start", "0.5", "--every", "40", "--into", str(copy)])
-
-    def weights(model: Path) -> dict[str, np.ndarray]:
-        loaded = load_model(PPO, model, device="cpu").policy.state_dict()
-        return {name: tensor.numpy() for name, tensor in loaded.items()}
-
-    averaged, expected = weights(RunFolder(copy).final_model), weights(keyed.final_model)
-    for name in expected:
-        np.testing.assert_allclose(averaged[name], expected[name], rtol=1e-6, err_msg=name)
-    # The control: the run it was made from still ends with its last update's weights.
-    last = weights(plain.final_model)
-    assert not np.allclose(last["action_net.weight"], averaged["action_net.weight"])
-    assert weights(keyed.checkpoint(224))["action_net.weight"].tolist() == (
-        last["action_net.weight"].tolist()
-    )  # the key changed nothing in training
-    config = yaml.safe_load((copy / "config.yml").read_text())
-    assert config["hyperparams"]["average_weights"] == {"start": 0.5, "every": 40}
-    assert "average_weights" not in yaml.safe_load(plain.config.read_text())["hyperparams"]
-    assert embedded_statistics(RunFolder(copy).final_model) == embedded_statistics(
-        plain.final_model
-    )
-    # keep_runs --resumable keeps the weights a resumed run averages at its end.
-    kept = benchmark_script("keep_runs").resume_files(keyed)
-    assert keyed.policy_weights(120) in kept and keyed.policy_weights(160) in kept
-    # Refusals, one line each, leaving nothing behind.
-    capsys.readouterr()  # the trainings' progress lines
-    refused = tmp_path / "refused"
-    for run, argv, message in [
-        (plain.path, ["--every", "30"], "kept no checkpoint at steps [150, 180]"),
-        (copy, ["--every", "40"], "its final model is averaged already"),
-        (plain.path, ["--every", "400"], "no multiple of 400 steps"),
-    ]:
-        with pytest.raises(SystemExit):
-            average_run.main([str(run), "--start", "0.5", *argv, "--into", str(refused)])
-        (line,) = error_lines(capsys.readouterr().err)
-        assert message in line
-        assert not refused.exists()

@@ -1,6 +1,6 @@
 """Callbacks SB3 lacks: checked checkpoints, a divergence guard, evaluations that continue
 after a resume, VecNormalize saved with the best model, a policy-video recorder, a
-decaying entropy target, growing pushes and the weights a final average needs."""
+decaying entropy target and growing pushes."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from stable_baselines3.common.vec_env import unwrap_vec_normalize
 
@@ -20,7 +19,6 @@ from minitaur_env.training import TrainingDiverged
 from minitaur_env.training.checkpoints import save_checked_checkpoint
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_env
-from minitaur_env.training.files import atomic_path
 from minitaur_env.training.hyperparams import (
     entropy_decay,
     hard_draws,
@@ -195,73 +193,6 @@ def schedules(config: ExperimentConfig) -> list[BaseCallback]:
         at, n_steps = shorter
         callbacks.append(ShorterReturnsFrom(int(at * steps), n_steps))
     return callbacks
-
-
-def keep_policy_weights(policy: torch.nn.Module, path: Path) -> None:
-    """The policy's weights as plain arrays (an npz that loads without pickles)."""
-    weights = {name: tensor.detach().cpu().numpy() for name, tensor in policy.state_dict().items()}
-    with atomic_path(path) as temp:
-        np.savez(temp, **weights)
-
-
-class WeightAverage(BaseCallback):
-    """Keeps the policy's weights at each of ``steps`` in the run folder, and makes the
-    final policy their mean with the final weights (``average_weights``).
-
-    The weights are files beside the checkpoints, so a resumed run averages the same
-    weights as one that never stopped: at its start it drops any kept after the
-    checkpoint it resumed from (a branch that no longer exists), and keeps the rest.
-    """
-
-    def __init__(self, run: RunFolder, steps: list[int]) -> None:
-        super().__init__()
-        self.run = run
-        self.steps = steps
-        self._pending: list[int] = []
-
-    def _init_callback(self) -> None:
-        now = self.model.num_timesteps
-        for steps, path in self.run.saved_policy_weights():
-            if steps > now:
-                path.unlink()
-        # A run extended from its end (--resume -n) resumes at a step it never kept: it
-        # keeps the weights it goes on from there, as a run that never stopped would have.
-        self._pending = [
-            step
-            for step in self.steps
-            if step > now or (step == now and not self.run.policy_weights(step).is_file())
-        ]
-
-    def _on_step(self) -> bool:
-        while self._pending and self.num_timesteps >= self._pending[0]:
-            self._keep(self._pending.pop(0))
-        return True
-
-    def _keep(self, steps: int) -> None:
-        keep_policy_weights(self.model.policy, self.run.policy_weights(steps))
-
-    def average_into(self, model: Any) -> None:
-        """Make ``model``'s policy the mean of the kept weights and its own. A kept set
-        that is missing refuses: an average of fewer would be another policy, silently."""
-        missing = [step for step in self.steps if not self.run.policy_weights(step).is_file()]
-        if missing:
-            raise FileNotFoundError(
-                f"average_weights: the policy weights at steps {missing} are not in "
-                f"{self.run.checkpoint_dir}; the final model was not averaged"
-            )
-        own = model.policy.state_dict()
-        total = {
-            name: tensor.detach().cpu().double()
-            for name, tensor in own.items()
-            if tensor.is_floating_point()
-        }
-        for step in self.steps:
-            with np.load(self.run.policy_weights(step), allow_pickle=False) as kept:
-                for name in total:
-                    total[name] += torch.from_numpy(kept[name]).double()
-        count = len(self.steps) + 1
-        averaged = {name: (total[name] / count).to(own[name].dtype) for name in total}
-        model.policy.load_state_dict({**own, **averaged})
 
 
 class CheckpointEveryCallback(BaseCallback):

@@ -11,12 +11,10 @@ import gymnasium as gym
 from minitaur_env.training import VEC_ENVS, UsageError
 from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, infer_algo
 from minitaur_env.training.hyperparams import (
-    AVERAGE_WEIGHTS_KEY,
     HARD_DRAWS_KEY,
     N_STEPS_AFTER_KEY,
     RUN_KEYS,
     algorithm_kwargs,
-    average_weights,
     entropy_decay,
     hard_draws,
     load_hyperparams,
@@ -153,12 +151,6 @@ class ExperimentConfig:
                 f"for {', '.join(sorted(OFF_POLICY))}"
             )
         n_steps_after(self.hyperparams)
-        if AVERAGE_WEIGHTS_KEY in self.hyperparams and self.backend != "sb3":
-            raise UsageError(
-                f"{AVERAGE_WEIGHTS_KEY}: averages a PyTorch policy's weights; "
-                f"--backend {self.backend} keeps its weights in JAX"
-            )
-        average_weights(self.hyperparams, self.n_timesteps)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)

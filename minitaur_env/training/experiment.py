@@ -42,7 +42,7 @@ from minitaur_env.training.checkpoints import (
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_eval_env, make_training_env
 from minitaur_env.training.files import ensure_writable, exclusive
-from minitaur_env.training.hyperparams import algorithm_kwargs, average_weights
+from minitaur_env.training.hyperparams import algorithm_kwargs
 from minitaur_env.training.results import RunResult
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.runtime import (
@@ -99,7 +99,6 @@ class Experiment:
         self.eval_env: VecEnv | None = None
         self.model: BaseAlgorithm | None = None
         self.resumed_at: int | None = None
-        self.weight_average: Any = None  # a WeightAverage when the entry averages weights
         # What a resume may unpickle: this session's choice (-i reads config.trust_pickle).
         self.trust_pickle = trust_pickle
 
@@ -265,7 +264,6 @@ class Experiment:
             PublishEvaluations,
             ResumableEvalCallback,
             VideoRecorderCallback,
-            WeightAverage,
             schedules,
         )
         from minitaur_env.training.progress import TrainingProgress
@@ -273,10 +271,6 @@ class Experiment:
         config, run = self.config, self.run_folder
         callbacks: list[BaseCallback] = [DivergenceGuardCallback()]
         callbacks += schedules(config)
-        averaged = average_weights(config.hyperparams, config.n_timesteps)
-        if averaged is not None:
-            self.weight_average = WeightAverage(run, averaged)
-            callbacks.append(self.weight_average)
         evaluation = None
         if config.eval_freq:
             # SB3 writes both in place; they are staged and then moved over atomically.
@@ -331,9 +325,6 @@ class Experiment:
         if self.config.save_freq and (not newest or newest[0][0] != model.num_timesteps):
             # With its replay buffer, so that --resume -n can extend the run exactly.
             save_checked_checkpoint(model, run)
-        if self.weight_average is not None:
-            # After the checkpoint, which keeps the weights training would go on from.
-            self.weight_average.average_into(model)
         save_model(model, run.zoo_model)
         normalizer = model.get_vec_normalize_env()
         if normalizer is not None:

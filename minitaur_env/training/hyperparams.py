@@ -40,11 +40,6 @@ NOISE_COLOR_UNTIL_KEY = "noise_color_until"
 # from its ``n_steps`` to these at that fraction of n_timesteps: long returns carry the
 # reward of a first walk back faster, short ones bias the end of training less.
 N_STEPS_AFTER_KEY = "n_steps_after"
-# ``average_weights: {start: 0.75, every: 50000}``: the final model's policy is the mean of
-# the policy's weights at each multiple of ``every`` steps from ``start`` (a fraction of
-# n_timesteps) and at the end (stochastic weight averaging, Izmailov et al. 2018): a policy
-# from the whole end of training, not from whatever the last update drew.
-AVERAGE_WEIGHTS_KEY = "average_weights"
 # Read by callbacks, not the algorithm.
 CALLBACK_KEYS = (
     ENTROPY_DECAY_KEY,
@@ -52,7 +47,6 @@ CALLBACK_KEYS = (
     HARD_DRAWS_KEY,
     NOISE_COLOR_UNTIL_KEY,
     N_STEPS_AFTER_KEY,
-    AVERAGE_WEIGHTS_KEY,
 )
 # ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
 # happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
@@ -282,37 +276,6 @@ def n_steps_after(hyperparams: dict[str, Any]) -> tuple[float, int] | None:
             f"entry's n_steps ({longest}), got {shorter!r}"
         )
     return float(at), shorter
-
-
-def average_weights(hyperparams: dict[str, Any], n_timesteps: int) -> list[int] | None:
-    """The steps before the end whose policy weights an ``average_weights`` entry averages
-    with the final ones, or None without one: each multiple of ``every`` from ``start``
-    times ``n_timesteps`` up to, not including, ``n_timesteps`` (the final weights come
-    after the last update, which an on-policy run makes past it)."""
-    entry = hyperparams.get(AVERAGE_WEIGHTS_KEY)
-    if entry is None:
-        return None
-    expected = "{start: <fraction of n_timesteps>, every: <steps>}"
-    if not isinstance(entry, dict) or set(entry) != {"start", "every"}:
-        raise UsageError(f"{AVERAGE_WEIGHTS_KEY}: expected {expected}, got {entry!r}")
-    start, every = entry["start"], entry["every"]
-    if isinstance(start, bool) or not isinstance(start, (int, float)) or not 0 <= start < 1:
-        raise UsageError(
-            f"{AVERAGE_WEIGHTS_KEY}.start must be a fraction of n_timesteps in [0, 1), "
-            f"got {start!r}"
-        )
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise UsageError(
-            f"{AVERAGE_WEIGHTS_KEY}.every must be a whole number of steps, got {every!r}"
-        )
-    first = -(-int(start * n_timesteps) // every) * every
-    steps = list(range(max(first, every), n_timesteps, every))
-    if not steps:
-        raise UsageError(
-            f"{AVERAGE_WEIGHTS_KEY}: no multiple of {every} steps between {start} of the run "
-            f"and its end ({n_timesteps}); nothing to average with the final weights"
-        )
-    return steps
 
 
 def mirrored(hyperparams: dict[str, Any]) -> bool:

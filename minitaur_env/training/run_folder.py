@@ -38,7 +38,6 @@ HUB_VECNORMALIZE = "vec_normalize.pkl"  # a Hub model folder's name (the zoo's p
 CHECKPOINT_PREFIX = "rl_model"  # SB3 CheckpointCallback's names: rl_model_<N>_steps.zip
 _CHECKPOINT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
 # .npz: plain arrays (replay_buffer.py); .pkl: SB3's pickle, written before 0.3.
-_WEIGHTS = re.compile(rf"^{CHECKPOINT_PREFIX}_policy_weights_(\d+)_steps\.npz$")
 _REPLAY_BUFFER = re.compile(rf"^{CHECKPOINT_PREFIX}_replay_buffer_(\d+)_steps\.(npz|pkl)$")
 
 
@@ -273,10 +272,6 @@ class RunFolder:
         """Where versions before 0.3 saved the buffer, as SB3's pickle."""
         return self.replay_buffer(steps).with_suffix(".pkl")
 
-    def policy_weights(self, steps: int) -> Path:
-        """The policy's weights at ``steps``, kept for the final model's average."""
-        return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_policy_weights_{steps}_steps.npz"
-
     def vecnormalize(self, steps: int) -> Path:
         return self.checkpoint_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
 
@@ -308,10 +303,6 @@ class RunFolder:
     def checkpoints(self) -> list[tuple[int, Path]]:
         """(steps, model zip) of every checkpoint, newest first."""
         return self._numbered(_CHECKPOINT)
-
-    def saved_policy_weights(self) -> list[tuple[int, Path]]:
-        """(steps, weights) of every kept set of policy weights, newest first."""
-        return self._numbered(_WEIGHTS)
 
     def replay_buffers(self) -> list[tuple[int, Path]]:
         """(steps, replay buffer) of every saved buffer, newest first."""

@@ -132,12 +132,10 @@ def write_normalizer_json(normalizer: Any, path: Path) -> None:
 
 
 def embed_statistics(model_zip: Path, normalizer: Any) -> None:
-    """Add the statistics (a VecNormalize, or its :func:`normalizer_content`) to a model zip
-    (SB3 ignores members it does not know), so that the model and the statistics it was
-    trained with travel, and are replaced, as one file."""
-    content = normalizer if isinstance(normalizer, dict) else normalizer_content(normalizer)
+    """Add the statistics to a model zip (SB3 ignores members it does not know), so that the
+    model and the statistics it was trained with travel, and are replaced, as one file."""
     with zipfile.ZipFile(model_zip, "a") as archive:
-        archive.writestr(EMBEDDED_STATISTICS, json.dumps(content))
+        archive.writestr(EMBEDDED_STATISTICS, json.dumps(normalizer_content(normalizer)))
 
 
 def embedded_statistics(model_zip: Path) -> dict[str, Any] | None:
