@@ -373,6 +373,31 @@ def test_a_quietly_truncated_video_replaces_nothing(tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
 
 
+def test_a_video_plays_its_episodes_through_the_one_episode_loop(tmp_path):
+    from minitaur_env import MinitaurBulletEnv
+    from minitaur_env.training import video
+    from minitaur_env.training.evaluation import run_episodes
+
+    env = MinitaurBulletEnv(render_mode="rgb_array", width=64, height=48)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (1000, 8))
+    step = iter(actions)
+    stats = video.record_video(
+        env, lambda obs: next(step), tmp_path / "clip.mp4", episodes=2, max_steps=30, seed=7
+    )
+    # 100 Hz control filmed at 50 fps: a frame every other step, 15 per 30-step episode.
+    assert stats["frames"] == 30 and stats["fps"] == 50
+    step = iter(actions)
+    played = run_episodes(lambda obs: next(step), env, 2, seed=7, max_steps=30)
+    assert [record["length"] for record in played] == [30, 30]
+    assert stats["returns"] == [record["return"] for record in played]
+    # The control: other seeds draw other dynamics, and so other returns.
+    step = iter(actions)
+    other = run_episodes(lambda obs: next(step), env, 2, seed=8, max_steps=30)
+    assert stats["returns"] != [record["return"] for record in other]
+    env.close()
+
+
 def test_default_video_name_goes_to_videos(workdir, best_model):
     result = run_main(
         evaluate.main,

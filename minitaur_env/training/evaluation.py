@@ -268,15 +268,18 @@ def run_episodes(
     policy: LoadedPolicy | OnnxPolicy | Callable[[np.ndarray], np.ndarray],
     env: gym.Env,
     episodes: int,
-    seed: int,
+    seed: int | None,
     deterministic: bool = True,
     from_reset: Callable[[dict[str, Any]], dict[str, float]] | None = None,
+    max_steps: int | None = None,
 ) -> list[dict[str, float]]:
     """One record per episode: return, length, distance, speed, fall, reward terms, and
     under pushes the pushes begun. The one loop that plays episodes: evaluation, shipping,
-    packaging and the benchmarks all call it. ``policy`` is a loaded policy, or any
-    function of the observation (a benchmark's zero action). ``from_reset`` adds fields
-    read from each reset's info (a benchmark's drawn dynamics)."""
+    packaging, videos and the benchmarks all call it. ``policy`` is a loaded policy, or
+    any function of the observation (a benchmark's zero action, a video's filming one).
+    ``seed``: episode ``i`` resets with ``seed + i`` (None: unseeded). ``from_reset`` adds
+    fields read from each reset's info (a benchmark's drawn dynamics); ``max_steps`` cuts
+    episodes shorter than the env's own limit (a short video)."""
     if hasattr(policy, "act"):  # a LoadedPolicy, an OnnxPolicy or one like them
         policy.check_spaces(env.observation_space, env.action_space)
         loaded = policy
@@ -286,7 +289,7 @@ def run_episodes(
 
     records = []
     for episode in range(episodes):
-        obs, info = env.reset(seed=seed + episode)
+        obs, info = env.reset(seed=None if seed is None else seed + episode)
         drawn = from_reset(info) if from_reset is not None else {}
         # Read after the reset: a randomized control step is drawn per episode.
         dt = float(getattr(env.unwrapped, "dt", 0.0) or 0.0)
@@ -297,7 +300,7 @@ def run_episodes(
         actions_at_limit = 0.0
         episode_return, length, pushes, pushing = 0.0, 0, 0, False
         terminated = truncated = False
-        while not (terminated or truncated):
+        while not (terminated or truncated or length == max_steps):
             obs, reward, terminated, truncated, info = env.step(policy(obs))
             episode_return += float(reward)
             length += 1

@@ -11,6 +11,7 @@ import gymnasium as gym
 import imageio.v2 as imageio
 import numpy as np
 
+from minitaur_env.training.evaluation import run_episodes
 from minitaur_env.training.files import atomic_path
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -48,8 +49,26 @@ def record_video(
     video_fps = control_fps / stride
     gif_every = max(1, round(video_fps / gif_fps))
     gif_frames: list[np.ndarray] = []
-    returns: list[float] = []
     frames = 0
+    steps_into_episode = 0
+
+    def restart(info: dict) -> dict[str, float]:
+        nonlocal steps_into_episode
+        steps_into_episode = 0
+        return {}
+
+    def filming(obs: np.ndarray) -> np.ndarray:
+        """The policy's action, after a frame every ``stride`` steps of each episode."""
+        nonlocal frames, steps_into_episode
+        if steps_into_episode % stride == 0:
+            frame = env.render()
+            writer.append_data(frame)
+            if gif_path is not None and frames % gif_every == 0:
+                gif_frames.append(_shrink(frame, gif_width))
+            frames += 1
+        steps_into_episode += 1
+        return policy(obs)
+
     with atomic_path(path) as temp:
         writer = imageio.get_writer(
             temp,
@@ -62,21 +81,9 @@ def record_video(
             macro_block_size=8,
         )
         try:
-            for episode in range(episodes):
-                obs, _ = env.reset(seed=None if seed is None else seed + episode)
-                episode_return = 0.0
-                for step in range(max_steps):
-                    if step % stride == 0:
-                        frame = env.render()
-                        writer.append_data(frame)
-                        if gif_path is not None and frames % gif_every == 0:
-                            gif_frames.append(_shrink(frame, gif_width))
-                        frames += 1
-                    obs, reward, terminated, truncated, _ = env.step(policy(obs))
-                    episode_return += float(reward)
-                    if terminated or truncated:
-                        break
-                returns.append(episode_return)
+            records = run_episodes(
+                filming, env, episodes, seed, from_reset=restart, max_steps=max_steps
+            )
         except OSError as error:  # ffmpeg died: a full disk, a file size limit
             raise OSError(
                 f"{path}: the video could not be written ({_first_line(error)})"
@@ -92,7 +99,7 @@ def record_video(
             )
     if gif_path is not None:
         write_gif(gif_frames, gif_path, fps=video_fps / gif_every)
-    return {"frames": frames, "fps": video_fps, "returns": returns}
+    return {"frames": frames, "fps": video_fps, "returns": [r["return"] for r in records]}
 
 
 def _first_line(error: BaseException) -> str:
