@@ -38,6 +38,7 @@ from minitaur_env.sensors import (
     quaternion_to_euler,
 )
 from minitaur_env.settings import (
+    CLASSIC_CONTROL_STEP,
     DRAW_ORDER,
     Camera,
     EpisodeRealism,
@@ -49,7 +50,6 @@ from minitaur_env.settings import (
 )
 from minitaur_env.sim import DATA_PATH, BulletSim
 
-CONTROL_TIME_STEP = 0.01  # s, one action at 100 Hz
 SUBSTEPS = 5  # physics steps per control step with a simulated motor model
 SOLVER_ITERATIONS = 300  # per control step; split over the substeps
 GRAVITY = -10.0
@@ -270,7 +270,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
         self._check_time_steps()
         # The classic solver budget: 300 iterations per 10 ms, whatever the control step.
         self._solver_iterations = round(
-            SOLVER_ITERATIONS * self.physics_time_step / CONTROL_TIME_STEP
+            SOLVER_ITERATIONS * self.physics_time_step / CLASSIC_CONTROL_STEP
         )
         self._use_episode(_typical(self.realism))
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dt)}
@@ -308,7 +308,7 @@ class MinitaurBulletEnv(gym.Env[np.ndarray, np.ndarray]):
                 )
             self.physics_time_step = control_time_step
         else:
-            self.physics_time_step = CONTROL_TIME_STEP / SUBSTEPS
+            self.physics_time_step = CLASSIC_CONTROL_STEP / SUBSTEPS
         if isinstance(control_time_step, Uniform):
             return  # each draw is snapped to whole physics steps
         substeps = round(control_time_step / self.physics_time_step)

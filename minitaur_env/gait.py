@@ -23,16 +23,14 @@ import numpy as np
 from gymnasium import spaces
 
 from minitaur_env.checks import boolean, checked_action, from_mapping, integer, number
-from minitaur_env.env import CONTROL_TIME_STEP, MAX_HISTORY, MinitaurBulletEnv, with_history
+from minitaur_env.env import MAX_HISTORY, MinitaurBulletEnv, with_history
 from minitaur_env.robot import NUM_MOTORS
+from minitaur_env.settings import CLASSIC_CONTROL_STEP, MAX_CONTROL_STEP
 
 # Front-left and back-right legs swing together, back-left and front-right half a cycle
 # later (the leg order of the action: front-left, back-left, front-right, back-right).
 TROT_PHASE_OFFSETS = np.array([0.0, math.pi, math.pi, 0.0])
 MODULATION_ENTRIES = 3  # frequency, extension amplitude, swing amplitude
-# The observed control step is in units of the classic one (10 ms); no drawn step reaches
-# this bound, which only sizes the observation space.
-CONTROL_STEP_BOUND = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,7 +112,9 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
         assert isinstance(inner, spaces.Box)
         low, high = [-1.0, -1.0], [1.0, 1.0]
         if self.observe_control_step:
-            low, high = [*low, 0.0], [*high, CONTROL_STEP_BOUND]
+            # In units of the classic 10 ms: the longest step the env accepts, repeated.
+            longest = MAX_CONTROL_STEP * env.unwrapped.action_repeat / CLASSIC_CONTROL_STEP
+            low, high = [*low, 0.0], [*high, longest]
         self.observation_space = spaces.Box(
             np.concatenate([inner.low, low]).astype(np.float32),
             np.concatenate([inner.high, high]).astype(np.float32),
@@ -154,7 +154,7 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     def _observe(self, observation: np.ndarray) -> np.ndarray:
         extra = [math.sin(self._phase), math.cos(self._phase)]
         if self.observe_control_step:
-            extra.append(self.env.unwrapped.dt / CONTROL_TIME_STEP)
+            extra.append(self.env.unwrapped.dt / CLASSIC_CONTROL_STEP)
         return np.concatenate([observation, extra]).astype(np.float32)
 
 

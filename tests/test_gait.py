@@ -112,6 +112,17 @@ def test_observe_control_step_ends_each_observation_with_the_episodes_drawn_step
         seen.add(env.unwrapped.dt)
     assert len(seen) > 1  # drawn per episode, so the policy can tell the episodes apart
     env.close()
+    # The policy's period is the step times action_repeat; the space holds the longest.
+    slow = gym.make(
+        "MinitaurBulletTrot-v0",
+        observe_control_step=True,
+        action_repeat=3,
+        realism={"control_time_step": 0.1},
+    )
+    observation, _ = slow.reset(seed=0)
+    assert observation[-1] == pytest.approx(30.0)
+    assert slow.observation_space.contains(observation)
+    slow.close()
     # Negative control: without it the observation ends with the phase, as before.
     plain = gym.make("MinitaurBulletTrotRandomized-v0")
     assert plain.observation_space.shape == (30,)
