@@ -29,7 +29,6 @@ LAYERS = [
     },
     {
         "run_folder",
-        "video",
         "plotting",
         "algorithms",
         "envs",
@@ -38,7 +37,7 @@ LAYERS = [
     },
     {"aggregate", "safe_load", "hyperparams"},
     {"config", "evaluation", "results"},
-    {"checkpoints", "onnx_export"},
+    {"checkpoints", "onnx_export", "video"},
     {"callbacks", "hub", "shipping"},
     {"experiment"},
     {"trial", "cli"},
