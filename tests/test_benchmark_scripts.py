@@ -6,6 +6,7 @@ the baselines and commands they name, and a setting that would skew a figure is 
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import json
 import os
 import re
@@ -16,6 +17,7 @@ from typing import Any
 
 import pytest
 
+from minitaur_env.gait import make_trotting_env
 from minitaur_env.training.evaluation import pretrained_models
 from tests.scripts import REPO, error_lines, needs, run_main, run_script
 
@@ -121,6 +123,66 @@ def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tm
     assert again.returncode == 0, again.stderr
     summary = json.loads(statistics.read_text())["summary"]
     assert summary["return"]["mean"] == pytest.approx(cell["mean"], abs=1e-6)
+
+
+def test_robustness_plays_a_gait_policy_on_the_observation_it_was_trained_on(tmp_path):
+    """A policy that observes its control step (a 2-frame history of 31 values) gets that
+    observation under every column, as evaluate.py gives it on the gait prior's env."""
+    trained = run_script(
+        "train.py",
+        "--algo",
+        "ppo",
+        "--env",
+        "MinitaurBulletTrot-v0",
+        "-n",
+        "64",
+        "--hyperparams",
+        "n_envs=1",
+        "n_steps=64",
+        "batch_size=32",
+        "--eval-freq",
+        "0",
+        "--save-freq",
+        "0",
+        "--env-kwargs",
+        "history=2",
+        "observe_control_step=true",
+        "-v",
+        "0",
+        cwd=tmp_path,
+    )
+    assert trained.returncode == 0, trained.stderr
+    model = tmp_path / "logs" / "ppo" / "MinitaurBulletTrot-v0_1" / "MinitaurBulletTrot-v0.zip"
+    cells = tmp_path / "cells.json"
+    judged = run_script(
+        "benchmarks/robustness.py",
+        *("--policy", f"clock={model}", "--episodes", "1", "--conditions", "latency 20 ms"),
+        *("--json", str(cells)),
+        cwd=tmp_path,
+    )
+    assert judged.returncode == 0, judged.stderr
+    cell = json.loads(cells.read_text())["clock"]["latency 20 ms"]
+    flags = shlex.split(figure_line(r"^latency 20 ms: --env-kwargs (.*)$", judged.stdout))
+    statistics = tmp_path / "evaluate.json"
+    again = run_script(
+        "evaluate.py",
+        *("--model", str(model), "--episodes", "1", "--seed", "12345"),
+        *("--env", "MinitaurBulletTrot-v0", "--env-kwargs", *flags, "--json", str(statistics)),
+        cwd=tmp_path,
+    )
+    assert again.returncode == 0, again.stderr
+    summary = json.loads(statistics.read_text())["summary"]
+    assert summary["return"]["mean"] == pytest.approx(cell["mean"], abs=1e-6)
+
+
+def test_robustness_keeps_every_option_the_gait_prior_adds_to_the_env():
+    """The gait prior's own keywords shape what its policies observe and do; a world
+    column that dropped one would hand a policy observations of another size."""
+    robustness = benchmark_module("robustness")
+    added = set(inspect.signature(make_trotting_env).parameters) - {"render_mode", "kwargs"}
+    assert added == {"gait", "history", "observe_control_step"}
+    assert added <= set(robustness.INTERFACE)
+    assert not {"realism", "dynamics_ranges", "preset"} & set(robustness.INTERFACE)
 
 
 def test_robustness_loads_no_pickle_unless_trusted_and_says_which_flag(tmp_path):
