@@ -84,6 +84,20 @@ def test_onnx_speed_times_every_shipped_policy_on_three_paths(tmp_path):
         assert float(size) > 0 and unit == "KiB"
 
 
+def evaluated_return(model, seed: int, *args: str, cwd) -> float:
+    """The mean return ``evaluate.py`` reports for one episode of ``model`` from ``seed``."""
+    statistics = cwd / "evaluate.json"
+    result = run_script(
+        "evaluate.py",
+        *("--model", str(model), "--episodes", "1", "--seed", str(seed)),
+        *args,
+        *("--json", str(statistics)),
+        cwd=cwd,
+    )
+    assert result.returncode == 0, result.stderr
+    return json.loads(statistics.read_text())["summary"]["return"]["mean"]
+
+
 def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tmp_path):
     model = next(model for _, model in pretrained_models() if model.parents[1].name == "sac")
     cells = tmp_path / "cells.json"
@@ -103,26 +117,10 @@ def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tm
     cell = json.loads(cells.read_text())["sac"]["pushes"]
     assert "| sac | " in result.stdout
     flags = shlex.split(figure_line(r"^pushes: --env-kwargs (.*)$", result.stdout))
-    statistics = tmp_path / "evaluate.json"
-    again = run_script(
-        "evaluate.py",
-        "--model",
-        str(model),
-        "--episodes",
-        "1",
-        "--seed",
-        "12345",
-        "--env",
-        "MinitaurBulletEnv-v0",
-        "--env-kwargs",
-        *flags,
-        "--json",
-        str(statistics),
-        cwd=tmp_path,
+    mean = evaluated_return(
+        model, 12345, "--env", "MinitaurBulletEnv-v0", "--env-kwargs", *flags, cwd=tmp_path
     )
-    assert again.returncode == 0, again.stderr
-    summary = json.loads(statistics.read_text())["summary"]
-    assert summary["return"]["mean"] == pytest.approx(cell["mean"], abs=1e-6)
+    assert mean == pytest.approx(cell["mean"], abs=1e-6)
 
 
 def test_robustness_plays_a_gait_policy_on_the_observation_it_was_trained_on(tmp_path):
@@ -163,16 +161,10 @@ def test_robustness_plays_a_gait_policy_on_the_observation_it_was_trained_on(tmp
     assert judged.returncode == 0, judged.stderr
     cell = json.loads(cells.read_text())["clock"]["latency 20 ms"]
     flags = shlex.split(figure_line(r"^latency 20 ms: --env-kwargs (.*)$", judged.stdout))
-    statistics = tmp_path / "evaluate.json"
-    again = run_script(
-        "evaluate.py",
-        *("--model", str(model), "--episodes", "1", "--seed", "12345"),
-        *("--env", "MinitaurBulletTrot-v0", "--env-kwargs", *flags, "--json", str(statistics)),
-        cwd=tmp_path,
+    mean = evaluated_return(
+        model, 12345, "--env", "MinitaurBulletTrot-v0", "--env-kwargs", *flags, cwd=tmp_path
     )
-    assert again.returncode == 0, again.stderr
-    summary = json.loads(statistics.read_text())["summary"]
-    assert summary["return"]["mean"] == pytest.approx(cell["mean"], abs=1e-6)
+    assert mean == pytest.approx(cell["mean"], abs=1e-6)
 
 
 def test_robustness_keeps_every_option_the_gait_prior_adds_to_the_env():
@@ -617,16 +609,8 @@ def test_falls_by_draw_plays_evaluate_pys_episodes_and_gives_each_policy_the_sam
     # Each table ends with both policies' totals.
     totals = [line for line in result.stdout.splitlines() if line.startswith("| all |")]
     assert len(totals) == 2 and all(line.count(" / 1 (") == 2 for line in totals)
-    statistics = tmp_path / "evaluate.json"
-    evaluated = run_script(
-        "evaluate.py",
-        *("--model", str(robust), "--episodes", "1", "--seed", "20001"),
-        *("--json", str(statistics)),
-        cwd=tmp_path,
-    )
-    assert evaluated.returncode == 0, evaluated.stderr
-    summary = json.loads(statistics.read_text())["summary"]
-    assert summary["return"]["mean"] == pytest.approx(float(base["return"]), abs=1e-6)
+    mean = evaluated_return(robust, 20001, cwd=tmp_path)
+    assert mean == pytest.approx(float(base["return"]), abs=1e-6)
 
     # A policy's episodes from that table stand in for playing it again.
     table_again = tmp_path / "falls-again.csv"
