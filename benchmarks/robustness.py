@@ -30,7 +30,13 @@ from minitaur_env.training.evaluation import load_policy, pretrained_models
 from minitaur_env.training.seeds import REPORT_SEED
 from minitaur_env.training.shipping import condition_label, judge
 
-INTERFACE = ("observation", "history", "gait", "observe_control_step")
+INTERFACE = (
+    "observation",
+    "history",
+    "gait",
+    "observe_control_step",
+    "observe_last_action",
+)
 ENV_ID = "MinitaurBulletEnv-v0"
 GAIT_ENV_ID = "MinitaurBulletTrot-v0"
 CONDITIONS: dict[str, dict[str, Any]] = {

@@ -172,7 +172,7 @@ def test_robustness_keeps_every_option_the_gait_prior_adds_to_the_env():
     column that dropped one would hand a policy observations of another size."""
     robustness = benchmark_module("robustness")
     added = set(inspect.signature(make_trotting_env).parameters) - {"render_mode", "kwargs"}
-    assert added == {"gait", "history", "observe_control_step"}
+    assert added == {"gait", "history", "observe_control_step", "observe_last_action"}
     assert added <= set(robustness.INTERFACE)
     assert not {"realism", "dynamics_ranges", "preset"} & set(robustness.INTERFACE)
 
