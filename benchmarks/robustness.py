@@ -30,13 +30,7 @@ from minitaur_env.training.evaluation import load_policy, pretrained_models
 from minitaur_env.training.seeds import REPORT_SEED
 from minitaur_env.training.shipping import condition_label, judge
 
-INTERFACE = (
-    "observation",
-    "history",
-    "gait",
-    "observe_control_step",
-    "observe_last_action",
-)
+INTERFACE = ("observation", "history", "gait", "observe_control_step")
 ENV_ID = "MinitaurBulletEnv-v0"
 GAIT_ENV_ID = "MinitaurBulletTrot-v0"
 CONDITIONS: dict[str, dict[str, Any]] = {

@@ -88,20 +88,14 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     Action ``Box(-1, 1, (11,))``: entries 0-7 are residuals on the env's leg-model
     action (same order), 8-10 modulate the frequency, the extension and the swing
     amplitude. Observation: the env's, then ``sin`` and ``cos`` of the generator's phase,
-    then with ``observe_control_step`` the episode's control step in units of 10 ms, then
-    with ``observe_last_action`` the leg-model action the env was last sent (zeros before
-    the first step). ``info`` gains ``gait_phase`` (rad) and ``gait_frequency`` (Hz).
+    then with ``observe_control_step`` the episode's control step in units of 10 ms.
+    ``info`` gains ``gait_phase`` (rad) and ``gait_frequency`` (Hz).
 
     Under randomized timing (3-20 ms in Tan et al.'s preset) the same action moves the
     robot up to six times farther on one episode than on another, and the phase history
     cannot tell a long step from a fast gait; a robot's controller knows its own loop
     period, so ``observe_control_step`` lets the policy know it too. The latency stays
     hidden, as on the robot.
-
-    Under a latency of 20-40 ms the classic observation is that old, so 2-4 commands are
-    in flight that it cannot show; a controller knows what it sent, so
-    ``observe_last_action`` hands the policy its last command, and a ``history`` of
-    observations then holds the last ``history`` commands.
     """
 
     def __init__(
@@ -109,12 +103,10 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
         env: gym.Env,
         trot: Trot | Mapping[str, Any] | None = None,
         observe_control_step: bool = False,
-        observe_last_action: bool = False,
     ) -> None:
         super().__init__(env)
         self.trot = Trot.coerce(trot)
         self.observe_control_step = boolean("observe_control_step", observe_control_step)
-        self.observe_last_action = boolean("observe_last_action", observe_last_action)
         self.action_space = spaces.Box(-1.0, 1.0, (NUM_MOTORS + MODULATION_ENTRIES,), np.float32)
         inner = env.observation_space
         assert isinstance(inner, spaces.Box)
@@ -123,22 +115,18 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
             # In units of the classic 10 ms: the longest step the env accepts, repeated.
             longest = MAX_CONTROL_STEP * env.unwrapped.action_repeat / CLASSIC_CONTROL_STEP
             low, high = [*low, 0.0], [*high, longest]
-        if self.observe_last_action:
-            low, high = [*low, *[-1.0] * NUM_MOTORS], [*high, *[1.0] * NUM_MOTORS]
         self.observation_space = spaces.Box(
             np.concatenate([inner.low, low]).astype(np.float32),
             np.concatenate([inner.high, high]).astype(np.float32),
             dtype=np.float32,
         )
         self._phase = 0.0
-        self._last_leg_action = np.zeros(NUM_MOTORS)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         observation, info = self.env.reset(seed=seed, options=options)
         self._phase = 0.0
-        self._last_leg_action = np.zeros(NUM_MOTORS)
         return self._observe(observation), info
 
     def step(
@@ -146,7 +134,6 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         leg_action, frequency = self.leg_action(action)
         observation, reward, terminated, truncated, info = self.env.step(leg_action)
-        self._last_leg_action = leg_action
         info["gait_phase"] = self._phase
         info["gait_frequency"] = frequency
         # The control step may be drawn per episode (randomized dynamics): read it each step.
@@ -168,8 +155,6 @@ class TrottingGait(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
         extra = [math.sin(self._phase), math.cos(self._phase)]
         if self.observe_control_step:
             extra.append(self.env.unwrapped.dt / CLASSIC_CONTROL_STEP)
-        if self.observe_last_action:
-            extra.extend(self._last_leg_action)
         return np.concatenate([observation, extra]).astype(np.float32)
 
 
@@ -178,12 +163,10 @@ def make_trotting_env(
     gait: Trot | Mapping[str, Any] | None = None,
     history: int = 1,
     observe_control_step: bool = False,
-    observe_last_action: bool = False,
     **kwargs: Any,
 ) -> gym.Env:
     """``MinitaurBulletEnv(render_mode, **kwargs)`` driven through a :class:`TrottingGait`
-    (``observe_control_step``, ``observe_last_action``: whether the observation ends with
-    the control step, then with the last leg-model action).
+    (``observe_control_step``: whether the observation ends with the control step).
 
     ``history`` (1 to 16): the policy sees the last ``history`` observations, newest last,
     flattened into one vector (the first observation repeated at reset). Under latency
@@ -192,10 +175,8 @@ def make_trotting_env(
     """
     integer("history", history, 1, MAX_HISTORY)  # before the simulator is built
     boolean("observe_control_step", observe_control_step)
-    boolean("observe_last_action", observe_last_action)
     env = MinitaurBulletEnv(render_mode, **kwargs)
-    gait_env = TrottingGait(env, gait, observe_control_step, observe_last_action)
-    return with_history(gait_env, history)
+    return with_history(TrottingGait(env, gait, observe_control_step), history)
 
 
 def has_gait_prior(env_id: str) -> bool:

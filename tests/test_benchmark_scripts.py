@@ -124,9 +124,8 @@ def test_robustness_cells_are_what_evaluate_py_reports_with_the_printed_flags(tm
 
 
 def test_robustness_plays_a_gait_policy_on_the_observation_it_was_trained_on(tmp_path):
-    """A policy that observes its control step and its last command (a 2-frame history of
-    39 values) gets that observation under every column, as evaluate.py gives it on the
-    gait prior's env."""
+    """A policy that observes its control step (a 2-frame history of 31 values) gets that
+    observation under every column, as evaluate.py gives it on the gait prior's env."""
     trained = run_script(
         "train.py",
         "--algo",
@@ -146,7 +145,6 @@ def test_robustness_plays_a_gait_policy_on_the_observation_it_was_trained_on(tmp
         "--env-kwargs",
         "history=2",
         "observe_control_step=true",
-        "observe_last_action=true",
         "-v",
         "0",
         cwd=tmp_path,
@@ -174,7 +172,7 @@ def test_robustness_keeps_every_option_the_gait_prior_adds_to_the_env():
     column that dropped one would hand a policy observations of another size."""
     robustness = benchmark_module("robustness")
     added = set(inspect.signature(make_trotting_env).parameters) - {"render_mode", "kwargs"}
-    assert added == {"gait", "history", "observe_control_step", "observe_last_action"}
+    assert added == {"gait", "history", "observe_control_step"}
     assert added <= set(robustness.INTERFACE)
     assert not {"realism", "dynamics_ranges", "preset"} & set(robustness.INTERFACE)
 

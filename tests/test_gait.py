@@ -21,13 +21,6 @@ from tests.scripts import needs, run_main
 STILL = np.zeros(11)
 
 
-def trotting_gait(env: gym.Env) -> TrottingGait:
-    """The :class:`TrottingGait` under ``env``'s TimeLimit, checkers and history."""
-    while not isinstance(env, TrottingGait):
-        env = env.env
-    return env
-
-
 def walk(env: gym.Env, steps: int, action: np.ndarray = STILL) -> tuple[int, dict]:
     """Play ``action`` for up to ``steps`` steps; the steps played and the last info."""
     env.reset(seed=0)
@@ -138,47 +131,6 @@ def test_observe_control_step_ends_each_observation_with_the_episodes_drawn_step
         gym.make("MinitaurBulletTrotRandomized-v0", observe_control_step=1)
 
 
-def test_observe_last_action_ends_each_observation_with_the_command_last_sent():
-    env = gym.make(
-        "MinitaurBulletTrotRandomized-v0",
-        history=3,
-        observe_control_step=True,
-        observe_last_action=True,
-    )
-    gait = trotting_gait(env)
-    observation, _ = env.reset(seed=0)
-    frames = observation.reshape(3, -1)
-    assert frames.shape[1] == 39  # the 28 sensors, sin and cos of the phase, the step, 8
-    np.testing.assert_array_equal(frames[:, -8:], 0.0)  # nothing sent yet
-    assert frames[-1, -9] == pytest.approx(env.unwrapped.dt / 0.01)  # the step stays before
-    rng = np.random.default_rng(0)
-    sent = []
-    for _ in range(4):
-        action = rng.uniform(-1.0, 1.0, 11)
-        leg_action, _ = gait.leg_action(action)
-        observation, *_ = env.step(action)
-        sent.append(leg_action)
-        assert env.observation_space.contains(observation)
-    frames = observation.reshape(3, -1)
-    np.testing.assert_allclose(frames[:, -8:], sent[-3:], atol=1e-6)  # oldest first
-    assert np.abs(sent).max() == 1.0  # the command shown is the clipped one the env got
-    # A new episode forgets the last one's commands.
-    observation, _ = env.reset(seed=1)
-    np.testing.assert_array_equal(observation.reshape(3, -1)[:, -8:], 0.0)
-    env.close()
-    # Negative control: without it the observation ends with the control step, as before.
-    clock = gym.make("MinitaurBulletTrotRandomized-v0", observe_control_step=True)
-    assert clock.observation_space.shape == (31,)
-    clock.close()
-    alone = gym.make("MinitaurBulletTrot-v0", observe_last_action=True)
-    assert alone.observation_space.shape == (38,)
-    np.testing.assert_array_equal(alone.observation_space.low[-8:], -1.0)
-    np.testing.assert_array_equal(alone.observation_space.high[-8:], 1.0)
-    alone.close()
-    with pytest.raises(ValueError, match=r"^observe_last_action must be True or False, got 'yes'$"):
-        gym.make("MinitaurBulletTrotRandomized-v0", observe_last_action="yes")
-
-
 def test_the_amplitudes_the_policy_asks_for_reach_the_legs():
     gait = TrottingGait(MinitaurBulletEnv(), {"extension": 0.4, "swing": 0.2, "modulation": 0.5})
     gait.reset(seed=0)
@@ -263,7 +215,10 @@ def test_a_gait_prior_policy_trains_plays_and_packages_with_its_generator(tmp_pa
     # The card makes the env the policy was trained on: the id with the run's kwargs.
     (make,) = set(re.findall(r'gym\.make\("MinitaurBulletTrot-v0".*?\)(?=\]|`)', card))
     env = eval(make, {"gym": gym})
-    assert trotting_gait(env).trot.frequency == 3.0
+    trot = env
+    while not isinstance(trot, TrottingGait):
+        trot = trot.env  # below TimeLimit and gymnasium's checkers
+    assert trot.trot.frequency == 3.0
     env.close()
     assert "the gait prior's 11 entries" in card  # ONNX users learn the generator runs in the env
     # The ONNX actor plays on the same env through evaluate.py (config.yml beside it).
