@@ -25,6 +25,7 @@ from minitaur_env.training import experiment as experiment_module
 from minitaur_env.training.aggregate import wall_clock_at
 from minitaur_env.training.algorithms import algorithm_class, load_model
 from minitaur_env.training.checkpoints import save_checked_checkpoint
+from minitaur_env.training.envs import RewardPerTime
 from minitaur_env.training.files import load_pickle
 from minitaur_env.training.hyperparams import load_hyperparams
 from minitaur_env.training.policies import GainActor
@@ -736,6 +737,56 @@ def test_a_push_curriculum_finds_the_pushes_in_realism_or_the_old_keyword(env_kw
             hyperparams=curriculum,
             env_kwargs={"realism": {"pushes": False}},
         )
+
+
+@pytest.mark.parametrize(("time_step", "factor"), [(None, 1.0), (0.1, 2.0), (0.025, 0.5)])
+def test_reward_time_step_scales_what_the_learner_is_paid_and_not_the_monitor(
+    tmp_path, time_step, factor
+):
+    # Pendulum's dt is 0.05 s: a 0.1 s time step pays the learner twice the env's reward.
+    hyperparams = {} if time_step is None else {"reward_time_step": time_step}
+    experiment = pendulum(tmp_path, hyperparams=hyperparams)
+    experiment.run()
+    learned = experiment.model.replay_buffer.rewards[:200, 0]
+    monitor = experiment.run_folder.monitor_dir / "0.monitor.csv"
+    logged = float(monitor.read_text().splitlines()[2].split(",")[0])
+    assert logged < -1  # the control's sum is not trivially 0
+    assert learned.sum() == pytest.approx(factor * logged, rel=1e-4)
+    assert experiment.eval_env.env_is_wrapped(RewardPerTime) == [False]
+
+    resumed = Experiment.resume(experiment.run_folder.path, n_timesteps=250, verbose=0)
+    resumed.build()
+    assert resumed.env.env_is_wrapped(RewardPerTime) == [time_step is not None]
+    resumed.close()
+
+
+def test_reward_per_time_follows_each_episodes_drawn_control_step():
+    env_id = "MinitaurBulletTrotRandomized-v0"
+    plain, scaled = gym.make(env_id), RewardPerTime(gym.make(env_id), time_step=0.01)
+    actions = np.zeros((5, *plain.action_space.shape), dtype=np.float32)
+    steps_seen, largest = set(), 0.0
+    try:
+        for seed in range(4):
+            plain.reset(seed=seed)
+            scaled.reset(seed=seed)
+            dt = float(scaled.unwrapped.dt)
+            steps_seen.add(round(dt, 4))
+            for action in actions:
+                reward = plain.step(action)[1]
+                largest = max(largest, abs(reward))
+                assert scaled.step(action)[1] == pytest.approx(reward * 0.01 / dt, abs=1e-9)
+    finally:
+        plain.close()
+        scaled.close()
+    assert len(steps_seen) > 1  # the draws moved the step, so the factor moved with it
+    assert largest > 1e-4  # and the rewards it scaled were not all zero
+
+
+@pytest.mark.parametrize("time_step", [0, -0.01, "10ms", True, float("inf")])
+def test_a_bad_reward_time_step_is_one_line(time_step):
+    message = f"reward_time_step must be a control step in seconds above 0, got {time_step!r}"
+    with pytest.raises(UsageError, match=re.escape(message)):
+        ExperimentConfig.resolve("ppo", "Pendulum-v1", hyperparams={"reward_time_step": time_step})
 
 
 @pytest.mark.parametrize(

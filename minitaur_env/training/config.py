@@ -22,6 +22,7 @@ from minitaur_env.training.hyperparams import (
     n_steps_after,
     noise_color_until,
     push_curriculum,
+    reward_time_step,
 )
 from minitaur_env.training.single_env import make_env, qualified_env_id
 
@@ -151,6 +152,7 @@ class ExperimentConfig:
                 f"for {', '.join(sorted(OFF_POLICY))}"
             )
         n_steps_after(self.hyperparams)
+        reward_time_step(self.hyperparams)
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)

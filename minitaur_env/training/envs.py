@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, SupportsFloat
 
+import gymnasium as gym
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import (
     DummyVecEnv,
@@ -18,6 +19,7 @@ from minitaur_env.training.vec_env import GroupedSubprocVecEnv, available_cores
 
 __all__ = [
     "NanGuard",
+    "RewardPerTime",
     "make_env",
     "make_eval_env",
     "make_training_env",
@@ -40,6 +42,21 @@ class NanGuard(VecCheckNan):
             raise TrainingDiverged(" ".join(str(error).split())) from None
 
 
+class RewardPerTime(gym.Wrapper):
+    """Scales each step's reward by ``time_step`` over the episode's control step (the
+    env's ``dt``, drawn at reset under a randomized step); outside the Monitor, which
+    keeps the env's own returns."""
+
+    def __init__(self, env: gym.Env, time_step: float) -> None:
+        super().__init__(env)
+        self.time_step = time_step
+
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        scale = self.time_step / float(self.env.unwrapped.dt)
+        return obs, float(reward) * scale, terminated, truncated, info
+
+
 def resolve_vec_env(vec_env: str, n_envs: int) -> str:
     """``auto``: grouped over the cores for several envs, else one env in this process."""
     if vec_env == "auto":
@@ -55,9 +72,11 @@ def make_training_env(
     vec_env: str = "auto",
     monitor_dir: str | None = None,
     append_monitor: bool = False,
+    reward_time_step: float | None = None,
 ) -> VecEnv:
     """Monitored, vectorized env that raises TrainingDiverged as soon as a NaN reaches it
-    or leaves it.
+    or leaves it; with ``reward_time_step`` the learner's rewards are scaled to that
+    control step (:class:`RewardPerTime`), after the monitor.
 
     ``vec_env="auto"`` runs several envs grouped over the CPU cores (the same
     transitions as a DummyVecEnv, faster) and a single env in this process.
@@ -76,6 +95,8 @@ def make_training_env(
         monitor_dir=monitor_dir,
         monitor_kwargs={"override_existing": not append_monitor},
         vec_env_cls=VEC_ENV_CLASSES[vec_env],
+        wrapper_class=RewardPerTime if reward_time_step else None,
+        wrapper_kwargs={"time_step": reward_time_step} if reward_time_step else None,
     )
     return NanGuard(env)
 

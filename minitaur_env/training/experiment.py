@@ -42,7 +42,7 @@ from minitaur_env.training.checkpoints import (
 from minitaur_env.training.config import ExperimentConfig
 from minitaur_env.training.envs import make_eval_env, make_training_env
 from minitaur_env.training.files import ensure_writable, exclusive
-from minitaur_env.training.hyperparams import algorithm_kwargs
+from minitaur_env.training.hyperparams import algorithm_kwargs, reward_time_step
 from minitaur_env.training.results import RunResult
 from minitaur_env.training.run_folder import RunFolder
 from minitaur_env.training.runtime import (
@@ -194,6 +194,7 @@ class Experiment:
             vec_env=config.vec_env,
             monitor_dir=str(self.run_folder.monitor_dir),
             append_monitor=self.resuming,
+            reward_time_step=reward_time_step(config.hyperparams),
         )
         self.env = env
         if normalizer is not None:  # saved statistics to go on from

@@ -51,6 +51,11 @@ CALLBACK_KEYS = (
 # ``mirror: true``: an off-policy run's replay buffer stores every transition twice, as it
 # happened and as its left-right mirror image (replay_buffer.MirroredReplayBuffer).
 MIRROR_KEY = "mirror"
+# ``reward_time_step: 0.01``: the learner is paid each step's reward times 0.01 s over the
+# episode's control step, so that the same speed pays the same under every drawn step (the
+# env pays distance: five times as much per step at 20 ms as at 4 ms). Monitor files,
+# evaluations and every reported return keep the env's own reward.
+REWARD_TIME_STEP_KEY = "reward_time_step"
 
 
 def hyperparams_file(algo: str) -> Path:
@@ -129,6 +134,7 @@ def algorithm_kwargs(hyperparams: dict[str, Any]) -> dict[str, Any]:
             "gamma": kwargs.get("gamma", 0.99),
         }
     kwargs.pop(MIRROR_KEY, None)
+    kwargs.pop(REWARD_TIME_STEP_KEY, None)
     for key in SCHEDULE_KEYS:
         value = kwargs.get(key)
         if not isinstance(value, str):
@@ -286,3 +292,16 @@ def mirrored(hyperparams: dict[str, Any]) -> bool:
     if value and "replay_buffer_class" in hyperparams:
         raise UsageError(f"{MIRROR_KEY}: sets the replay buffer itself; drop replay_buffer_class")
     return value
+
+
+def reward_time_step(hyperparams: dict[str, Any]) -> float | None:
+    """The ``reward_time_step`` entry in seconds, or None without one."""
+    value = hyperparams.get(REWARD_TIME_STEP_KEY)
+    if value is None:
+        return None
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not number or not 0 < value < float("inf"):
+        raise UsageError(
+            f"{REWARD_TIME_STEP_KEY} must be a control step in seconds above 0, got {value!r}"
+        )
+    return float(value)
