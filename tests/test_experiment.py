@@ -782,6 +782,14 @@ def test_reward_per_time_follows_each_episodes_drawn_control_step():
     assert largest > 1e-4  # and the rewards it scaled were not all zero
 
 
+def test_reward_time_step_refuses_an_env_without_a_control_step():
+    message = "reward_time_step: CartPole-v1 has no control step to scale by"
+    with pytest.raises(UsageError, match=re.escape(message)):
+        ExperimentConfig.resolve("ppo", "CartPole-v1", hyperparams={"reward_time_step": 0.01})
+    # control: the same key on an env with a dt resolves
+    ExperimentConfig.resolve("ppo", "Pendulum-v1", hyperparams={"reward_time_step": 0.01})
+
+
 @pytest.mark.parametrize("time_step", [0, -0.01, "10ms", True, float("inf")])
 def test_a_bad_reward_time_step_is_one_line(time_step):
     message = f"reward_time_step must be a control step in seconds above 0, got {time_step!r}"

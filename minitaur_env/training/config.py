@@ -13,6 +13,7 @@ from minitaur_env.training.algorithms import OFF_POLICY, algorithm_class, infer_
 from minitaur_env.training.hyperparams import (
     HARD_DRAWS_KEY,
     N_STEPS_AFTER_KEY,
+    REWARD_TIME_STEP_KEY,
     RUN_KEYS,
     algorithm_kwargs,
     entropy_decay,
@@ -152,7 +153,8 @@ class ExperimentConfig:
                 f"for {', '.join(sorted(OFF_POLICY))}"
             )
         n_steps_after(self.hyperparams)
-        reward_time_step(self.hyperparams)
+        if reward_time_step(self.hyperparams) is not None:
+            self._check_control_step()
         _check_ranges(self.hyperparams)
         qualified_env_id(self.env)
         push_curriculum(self.hyperparams, self.env_pushes)
@@ -174,6 +176,20 @@ class ExperimentConfig:
             raise UsageError(f"{HARD_DRAWS_KEY}: {error}") from error
         finally:
             env.close()
+
+    def _check_control_step(self) -> None:
+        """reward_time_step reads the env's ``dt`` at every step; refuse an env without one
+        now, not at the first step of training."""
+        env = make_env(self.env, self.env_kwargs)
+        try:
+            dt = getattr(env.unwrapped, "dt", None)
+        finally:
+            env.close()
+        if not isinstance(dt, (int, float)) or not dt > 0:
+            raise UsageError(
+                f"{REWARD_TIME_STEP_KEY}: {self.env} has no control step to scale by "
+                "(its unwrapped env has no dt in seconds)"
+            )
 
     def _check_trained_agent(self, path: Path) -> None:
         if not path.is_file():
